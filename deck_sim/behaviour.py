@@ -1,0 +1,335 @@
+"""Purposeful motion of the movers (paper's assumptions 1-3), vectorised over all movers.
+
+Each mover picks a special spot, plans the shortest route around the static obstacles to it, drives the route
+at a cruise speed drawn for this trip, brakes to a stop at the spot, dwells a random time, then picks another
+spot (never the one it is at) and leaves at a new random speed. Movers brake for whatever is close ahead of
+them (other movers, and the agent if ``yield_to_agent``); in a stand-off the lower-numbered mover goes first.
+
+The behaviour only *commands*: it returns desired velocities once per control step and the vehicles' actuators
+produce the motion, so accelerations and turn rates are physical. Randomness comes only from the generator
+passed to ``reset``. Numpy only; the task feeds it measured positions, headings and speeds.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from deck_sim.geometry import NoPathError, VisibilityGraph, polyline_length
+
+DRIVING, DWELLING = 0, 1
+
+
+@dataclass(frozen=True)
+class BehaviourParams:
+    """Limits and habits of the movers (from the scene's ``[movers]`` table)."""
+
+    speed_range: tuple[float, float]
+    """m/s, cruise speed drawn per trip."""
+    dwell_range: tuple[float, float]
+    """Seconds, dwell time drawn per stop."""
+    accel: float
+    """m/s^2, commanded acceleration limit."""
+    decel: float
+    """m/s^2, braking used to plan stops."""
+    turn_rate: float
+    """rad/s, largest commanded turn rate of wheeled movers."""
+    yield_distance: float
+    """Metres of free space a mover keeps ahead of it (0: never yields)."""
+    yield_to_agent: bool
+    """Whether the agent counts among the things a mover yields to."""
+    agent_yield_distance: float = 6.0
+    """Metres of free space a mover keeps ahead of it when the agent is there (an emergency stop: it brakes at
+    once, as hard as its drive allows)."""
+    arrive_tolerance: float = 1.0
+    """Metres from the spot at which a slow mover counts as arrived."""
+    waypoint_tolerance: float = 2.5
+    """Metres from an intermediate waypoint at which the route's next waypoint becomes the aim."""
+    heading_gain: float = 1.5
+    """1/s, turn rate commanded per radian of heading error (wheeled)."""
+    stuck_time: float = 12.0
+    """Seconds of standing still while driving (not yielding) after which the mover picks another spot."""
+    max_yield_time: float = 4.0
+    """Seconds a mover yields to another mover before it goes anyway (no deadlocks)."""
+
+
+@dataclass
+class MoverCommands:
+    """Desired motion of every mover for the next control step."""
+
+    speed: np.ndarray
+    """(n,) forward speed, m/s (wheeled) or walking speed (pedestrians)."""
+    yaw_rate: np.ndarray
+    """(n,) turn rate, rad/s (wheeled; zero for pedestrians)."""
+    velocity: np.ndarray
+    """(n, 2) world-frame velocity, m/s (what pedestrians use)."""
+
+
+@dataclass
+class MoverBehaviour:
+    """Behaviour of n movers among fixed static obstacles.
+
+    Args:
+        spots: (k, 2) positions of the special spots, metres.
+        holonomic: (n,) true for pedestrians (they walk in any direction).
+        radii: (n,) radius of each mover's footprint disc, metres.
+        params: the scene's limits.
+    """
+
+    spots: np.ndarray
+    holonomic: np.ndarray
+    radii: np.ndarray
+    params: BehaviourParams
+    fronts: np.ndarray | None = None
+    """(n,) metres from each mover's centre to its nose (half-length); the radii when not given."""
+    agent_radius: float = 0.0
+    """Metres: half-width of the agent (what a mover must clear when passing it)."""
+    agent_front: float = 0.0
+    """Metres: half-length of the agent (how far it reaches towards a mover that meets it head-on)."""
+    graphs: list[VisibilityGraph] = field(default_factory=list)
+
+    def reset(
+        self,
+        graphs: list[VisibilityGraph],
+        positions: np.ndarray,
+        at_spot: np.ndarray,
+        rng: np.random.Generator,
+    ) -> None:
+        """Start an episode: every mover leaves for a new spot at a new random speed.
+
+        Args:
+            graphs: one route graph per mover (movers of one kind may share one).
+            positions: (n, 2) starting positions, metres.
+            at_spot: (n,) index of the spot a mover starts at, or -1.
+            rng: the episode's generator.
+        """
+        n = len(self.radii)
+        self.graphs = graphs
+        self._rng = rng
+        self.mode = np.full(n, DRIVING)
+        self.spot = np.asarray(at_spot, dtype=int).copy()  # spot being driven to, or dwelt at
+        self.last_spot = np.asarray(at_spot, dtype=int).copy()
+        self.cruise = np.zeros(n)
+        self.dwell_until = np.zeros(n)
+        self.cmd_speed = np.zeros(n)
+        self.still_since = np.full(n, np.nan)
+        self.yield_since = np.full(n, np.nan)
+        self.yielding = np.zeros(n, dtype=bool)
+        self.routes: list[np.ndarray] = [np.zeros((0, 2))] * n
+        self.route_rest = [np.zeros(0)] * n  # remaining route length after each waypoint
+        self.waypoint = np.zeros(n, dtype=int)
+        self.route_last = np.zeros(n, dtype=int)
+        self._lower = np.arange(n)[None, :] < np.arange(n)[:, None]  # [i, j]: j < i
+        # what each mover yields to: the other movers and, if enabled, the agent (last column)
+        self._others = np.zeros((n + 1, 2))
+        # ahead: free distance + own half-length + the other's half-length; beside: both half-widths
+        radii_all = np.append(self.radii, self.agent_radius)
+        fronts = self.radii if self.fronts is None else np.asarray(self.fronts, dtype=float)
+        fronts_all = np.append(fronts, max(self.agent_front, self.agent_radius))
+        rsum = self.radii[:, None] + radii_all[None, :]
+        fsum = fronts[:, None] + fronts_all[None, :]
+        self._yield_reach = self.params.yield_distance + fsum
+        self._yield_reach[:, n] = self.params.agent_yield_distance + fsum[:, n]
+        self._yield_reach[np.arange(n), np.arange(n)] = -1.0  # never yield to oneself
+        if not self.params.yield_to_agent:
+            self._yield_reach[:, n] = -1.0
+        self._yield_width = rsum + 0.5
+        self._yield_width[:, n] += 0.5
+        self._any_holonomic = bool(np.any(self.holonomic))
+        self._route_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        self.aim = np.asarray(positions, dtype=float).copy()
+        self.rest_after_aim = np.zeros(n)
+        for i in range(n):
+            self._depart(i, positions[i], t=0.0)
+
+    # -- events (Python per mover, rare) ---------------------------------------------------------------
+    def _depart(self, i: int, position: np.ndarray, t: float) -> None:
+        """Mover i picks a new spot and speed and plans its route there."""
+        k = len(self.spots)
+        choices = [s for s in range(k) if s != self.spot[i] and s != self.last_spot[i]] or [
+            s for s in range(k) if s != self.spot[i]
+        ]
+        self.last_spot[i] = self.spot[i]
+        self.spot[i] = int(self._rng.choice(choices))
+        lo, hi = self.params.speed_range
+        self.cruise[i] = float(self._rng.uniform(lo, hi))
+        self.mode[i] = DRIVING
+        self.still_since[i] = np.nan
+        self._plan(i, position)
+
+    def _plan(self, i: int, position: np.ndarray) -> None:
+        goal = self.spots[self.spot[i]]
+        graph = self.graphs[i]
+        # routes between spots do not change within an episode: plan each once per route graph
+        frm = self.last_spot[i]
+        key = (id(graph), int(frm), int(self.spot[i]))
+        if frm >= 0 and np.linalg.norm(position - self.spots[frm]) < 3.0 and key in self._route_cache:
+            route = self._route_cache[key]
+        else:
+            try:
+                route = graph.shortest_path(position, goal)
+            except NoPathError:
+                route = np.stack([np.asarray(position, dtype=float), goal])
+            if frm >= 0 and np.linalg.norm(position - self.spots[frm]) < 3.0:
+                self._route_cache[key] = route
+        route = route[1:]  # the first point is where the mover stands
+        seg = np.linalg.norm(np.diff(route, axis=0), axis=1) if len(route) > 1 else np.zeros(0)
+        rest = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]]) if len(seg) else np.zeros(1)
+        self.routes[i] = route
+        self.route_rest[i] = rest
+        self.route_last[i] = len(route) - 1
+        self.waypoint[i] = 0
+        self.aim[i] = route[0]
+        self.rest_after_aim[i] = rest[0]
+
+    def _arrive(self, i: int, t: float) -> None:
+        lo, hi = self.params.dwell_range
+        self.mode[i] = DWELLING
+        self.dwell_until[i] = t + float(self._rng.uniform(lo, hi))
+
+    # -- the per-step command (vectorised; the hot path: keep the number of numpy calls small) -------------
+    def command(
+        self,
+        t: float,
+        dt: float,
+        positions: np.ndarray,
+        headings: np.ndarray,
+        speeds: np.ndarray,
+        agent_xy: np.ndarray,
+    ) -> MoverCommands:
+        """Desired motion of every mover for the control step starting at time ``t`` (seconds).
+
+        Args:
+            dt: the control period, seconds.
+            positions: (n, 2) metres; headings: (n,) radians; speeds: (n,) m/s, all measured now.
+            agent_xy: (2,) the agent's position, metres.
+        """
+        p = self.params
+        driving = self.mode == DRIVING
+        to_aim = self.aim - positions
+        dist_aim = np.sqrt((to_aim * to_aim).sum(axis=1))
+        last_wp = self.waypoint >= self.route_last
+        # events, rare: next waypoint, arrival, departure, stuck
+        events = (
+            (driving & ~last_wp & (dist_aim < p.waypoint_tolerance))
+            | (driving & last_wp & (dist_aim < p.arrive_tolerance) & (speeds < 0.6))
+            | (~driving & (t >= self.dwell_until))
+        )
+        moving = speeds > 0.2
+        self.still_since[moving | ~driving] = np.nan
+        starting = ~moving & driving & np.isnan(self.still_since)
+        self.still_since[starting] = t
+        stuck = driving & (t - self.still_since > p.stuck_time) & ~self.yielding
+        if events.any() or stuck.any():
+            for i in np.flatnonzero(events | stuck):
+                if stuck[i] or (not driving[i] and t >= self.dwell_until[i]):
+                    self._depart(i, positions[i], t)
+                elif not last_wp[i]:
+                    self.waypoint[i] += 1
+                    self.aim[i] = self.routes[i][self.waypoint[i]]
+                    self.rest_after_aim[i] = self.route_rest[i][self.waypoint[i]]
+                else:
+                    self._arrive(i, t)
+            driving = self.mode == DRIVING
+            to_aim = self.aim - positions
+            dist_aim = np.sqrt((to_aim * to_aim).sum(axis=1))
+
+        # speed profile: cruise, braking to a stop at the spot (planned half a step early)
+        remaining = dist_aim + self.rest_after_aim
+        v_stop = np.sqrt(2.0 * p.decel * np.maximum(remaining - speeds * (0.5 * dt) - 0.3, 0.0))
+        v_des = np.minimum(self.cruise, v_stop) * driving
+        v_des[self._must_yield(t, positions, headings, to_aim, dist_aim, driving, agent_xy)] = 0.0
+        err = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
+        # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
+        align = np.maximum(np.cos(err), 0.0)
+        align *= align
+        if self._any_holonomic:
+            align[self.holonomic] = 1.0
+        v_cmd = np.minimum(v_des * align, self.cmd_speed + p.accel * dt)
+        np.maximum(v_cmd, self.cmd_speed - p.decel * 2.0 * dt, out=v_cmd)
+        v_cmd[self.yielding] = 0.0  # yielding brakes at once, as hard as the drive allows
+        np.maximum(v_cmd, 0.0, out=v_cmd)
+        self.cmd_speed = v_cmd
+        yaw_rate = np.minimum(p.heading_gain * err, p.turn_rate)
+        np.maximum(yaw_rate, -p.turn_rate, out=yaw_rate)
+        yaw_rate *= driving & ~self.holonomic
+        velocity = to_aim * (v_cmd / np.maximum(dist_aim, 1e-6))[:, None]
+        return MoverCommands(speed=v_cmd, yaw_rate=yaw_rate, velocity=velocity)
+
+    def _must_yield(
+        self,
+        t: float,
+        positions: np.ndarray,
+        headings: np.ndarray,
+        to_aim: np.ndarray,
+        dist_aim: np.ndarray,
+        driving: np.ndarray,
+        agent_xy: np.ndarray,
+    ) -> np.ndarray:
+        """(n,) whether each driving mover has something close ahead that it must stop for."""
+        p = self.params
+        n = len(self.radii)
+        if p.yield_distance <= 0:
+            return np.zeros(n, dtype=bool)
+        # vehicles look along their heading; pedestrians along the way they are going
+        fx, fy = np.cos(headings), np.sin(headings)
+        if self._any_holonomic:
+            hol = self.holonomic & (dist_aim > 1e-6)
+            fx[hol] = to_aim[hol, 0] / dist_aim[hol]
+            fy[hol] = to_aim[hol, 1] / dist_aim[hol]
+        # others: every mover, then the agent as the last column
+        others = self._others
+        others[:n] = positions
+        others[n] = agent_xy
+        rx = others[None, :, 0] - positions[:, 0:1]
+        ry = others[None, :, 1] - positions[:, 1:2]
+        fx, fy = fx[:, None], fy[:, None]
+        along = rx * fx + ry * fy
+        lateral = np.abs(rx * fy - ry * fx)
+        ahead = (along > 0.0) & (along < self._yield_reach) & (lateral < self._yield_width)
+        movers = ahead[:, :n]
+        # in a stand-off (each ahead of the other) the lower index goes first
+        movers &= ~movers.T | self._lower
+        by_mover = movers.any(axis=1)
+        # a mover that waited too long for another mover goes anyway
+        self.yield_since[~by_mover] = np.nan
+        self.yield_since[by_mover & np.isnan(self.yield_since)] = t
+        by_mover &= (t - self.yield_since) <= p.max_yield_time
+        self.yielding = (by_mover | ahead[:, n]) & driving
+        return self.yielding
+
+    _STATE = (
+        "mode",
+        "spot",
+        "last_spot",
+        "cruise",
+        "dwell_until",
+        "cmd_speed",
+        "still_since",
+        "yield_since",
+        "yielding",
+        "routes",
+        "route_rest",
+        "route_last",
+        "waypoint",
+        "aim",
+        "rest_after_aim",
+    )
+
+    def snapshot(self) -> dict:
+        """A copy of the mutable state and of the random generator (for simulating ahead)."""
+        state = {k: copy.deepcopy(getattr(self, k)) for k in self._STATE}
+        state["rng"] = copy.deepcopy(self._rng)
+        return state
+
+    def restore(self, state: dict) -> None:
+        """Return to a ``snapshot``."""
+        for k in self._STATE:
+            setattr(self, k, copy.deepcopy(state[k]))
+        self._rng = copy.deepcopy(state["rng"])
+
+    def route_length(self, i: int) -> float:
+        """Metres left on mover i's current route (for diagnostics)."""
+        return polyline_length(self.routes[i][self.waypoint[i] :])

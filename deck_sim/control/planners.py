@@ -1,0 +1,154 @@
+"""Planners that need no training, acting on full knowledge of the scene (``PlannerView``).
+
+``ScriptedPlanner`` is how deck_sim knows a scene is solvable: it plans the shortest path around the static
+obstacles (visibility graph, for a disc of the agent's radius plus a margin), follows it by pure pursuit, and
+picks each step the fastest speed whose rollout along that path stays clear of every mover's predicted path
+(the true future when the task runs the ``oracle`` predictor). It yields by slowing or stopping, never by
+leaving its path. Numpy only (with ``deck_sim.geometry``); tested without MuJoCo.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph
+from deck_sim.types import PlannerView
+
+
+@dataclass
+class ScriptedPlanner:
+    """Full-knowledge path follower that yields to movers.
+
+    Args:
+        margin: metres of clearance kept from static obstacles beyond the agent's radius.
+        mover_margin: metres of clearance kept from movers' predicted positions beyond both radii.
+        lookahead: pure-pursuit carrot distance along the path, metres (scaled by the reach / 3 m).
+        speeds: candidate speeds as fractions of the full reach per period, fastest first.
+    """
+
+    margin: float = 2.5
+    mover_margin: float = 2.0
+    lookahead: float = 8.0
+    speeds: tuple[float, ...] = (1.0, 0.75, 0.5, 0.25, 0.0)
+    parked_margin: float = 0.5
+    """Metres kept beyond both discs from a mover predicted to stand still."""
+    patience: int = 4
+    """Decisions spent stopped for a mover that will not move before planning a way around it."""
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous episode's obstacles."""
+        self._graph: VisibilityGraph | None = None
+        self._statics_id: int | None = None
+        self._stopped = 0
+        self._detour: VisibilityGraph | None = None
+        self._detour_steps = 0
+
+    def path(self, view: PlannerView) -> np.ndarray:
+        """Shortest path (m, 2) from the agent to the target around the statics (and parked movers on a detour)."""
+        if self._graph is None or self._statics_id != id(view.statics):
+            self._graph = VisibilityGraph(view.statics, view.agent_radius + self.margin, view.bounds)
+            self._statics_id = id(view.statics)
+            self._detour = None
+        graph = self._detour if self._detour is not None else self._graph
+        try:
+            return graph.shortest_path(view.agent_xy, view.target_xy)
+        except NoPathError:
+            return np.stack([view.agent_xy, view.target_xy])
+
+    def _plan_detour(self, view: PlannerView) -> None:
+        """Treat movers predicted to stay put near the agent as obstacles for a while."""
+        future = view.mover_future
+        if future.shape[1] == 0:
+            return
+        travel = np.hypot(*(future[:, -1] - view.movers.centers).T)
+        near = np.hypot(*(view.movers.centers - view.agent_xy).T) < 4.0 * (view.agent_radius + 5.0)
+        parked = (travel < 1.0) & near
+        if not parked.any():
+            return
+        fp = view.movers
+        # pass a stopped vehicle closer than a static obstacle (``parked_margin`` beyond both discs, as the speed
+        # check does), so the agent is rarely inside the grown blocker and the path really goes around it
+        r = np.hypot(fp.half[parked, 0], fp.half[parked, 1]) + fp.radius[parked]
+        blockers = Footprints(
+            fp.centers[parked],
+            np.zeros((int(parked.sum()), 2)),
+            fp.yaw[parked],
+            r + self.parked_margin + 0.25 - self.margin,
+        )
+        self._detour = VisibilityGraph(
+            Footprints.concatenate([view.statics, blockers]), view.agent_radius + self.margin, view.bounds
+        )
+        self._detour_steps = 3 * self.patience
+
+    def act(self, view: PlannerView) -> np.ndarray:
+        """Action (2,) in [-1, 1]^2: the displacement to ask for over the next period, as a fraction of reach."""
+        if self._detour is not None:
+            self._detour_steps -= 1
+            if self._detour_steps <= 0:
+                self._detour = None
+        path = self.path(view)
+        scale = view.reach / 3.0
+        carrot = _point_along(path, self.lookahead * max(scale, 0.25))
+        to_carrot = carrot - view.agent_xy
+        dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
+        direction = to_carrot / max(float(np.linalg.norm(to_carrot)), 1e-9)
+        fraction, _ = self._safe_speed(view, path)
+        self._stopped = self._stopped + 1 if fraction == 0.0 else 0
+        if self._stopped >= self.patience and self._detour is None:
+            self._plan_detour(view)
+            self._stopped = 0
+        # do not overshoot the goal
+        step = min(fraction * view.reach, max(dist_goal - 0.25 * view.goal_radius, 0.0))
+        return np.clip(direction * step / view.reach, -1.0, 1.0)
+
+    def _clearance(self, view: PlannerView, ahead: np.ndarray) -> float:
+        """Worst margin (metres) of a rollout ``ahead`` (N, 2) against the movers' predicted paths.
+
+        A moving mover must stay ``mover_margin`` beyond both discs; one predicted to stand still over the
+        horizon (it is parked, dwelling or yielding) only ``parked_margin``. A mover already closer than that
+        must not come closer. Positive means safe.
+        """
+        future = view.mover_future
+        mover_r = np.hypot(view.movers.half[:, 0], view.movers.half[:, 1]) + view.movers.radius
+        parked = np.hypot(*(future[:, -1] - view.movers.centers).T) < 1.0
+        need = view.agent_radius + mover_r + np.where(parked, self.parked_margin, self.mover_margin)  # (n,)
+        floor = np.minimum(np.hypot(*(view.movers.centers - view.agent_xy).T) - need, 0.0) - 0.05
+        gap = np.hypot(*(future - ahead[None]).transpose(2, 0, 1)) - need[:, None]  # (n, N)
+        now = np.hypot(*(view.movers.centers - ahead[0]).T) - need  # where they are during the first step
+        return min(float((gap - floor[:, None]).min()), float((now - floor).min()))
+
+    def _safe_speed(self, view: PlannerView, path: np.ndarray) -> tuple[float, float]:
+        """Fastest candidate speed whose rollout along ``path`` keeps clear of the movers, and its margin.
+
+        If no candidate is clear, the one with the largest margin.
+        """
+        future = view.mover_future
+        if future.shape[0] == 0 or future.shape[1] == 0:
+            return self.speeds[0], np.inf
+        n_steps = future.shape[1]
+        seg = np.diff(path, axis=0)
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+        best, best_clear = self.speeds[-1], -np.inf
+        for frac in self.speeds:
+            s = np.minimum(frac * view.reach * np.arange(1, n_steps + 1), cum[-1])
+            ahead = np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
+            clear = self._clearance(view, ahead)
+            if clear > 0:
+                return frac, clear
+            if clear > best_clear:
+                best, best_clear = frac, clear
+        return best, best_clear
+
+
+def _point_along(path: np.ndarray, distance: float) -> np.ndarray:
+    """The point ``distance`` metres along a polyline from its start (its end if shorter)."""
+    seg = np.diff(path, axis=0)
+    lengths = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    d = min(distance, cum[-1])
+    return np.array([np.interp(d, cum, path[:, 0]), np.interp(d, cum, path[:, 1])])

@@ -1,0 +1,102 @@
+"""Episode metrics (numpy only): path length, turning angle, outcome rates.
+
+Angles are radians inside; ``summarize`` reports turning angles in degrees, as the paper does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+OUTCOMES = ("goal", "collision", "off_surface", "timeout", "diverged")
+
+
+def path_length(xy: np.ndarray) -> float:
+    """Length in metres of a planar path (T, 2)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) < 2:
+        return 0.0
+    return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+
+
+def turning_angle(xy: np.ndarray, min_segment: float = 0.05) -> float:
+    """Total absolute change of direction along a planar path (T, 2), radians.
+
+    Directions are taken between consecutive samples at least ``min_segment`` metres apart, so a vehicle
+    standing still (numerical jitter) adds nothing.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) < 3:
+        return 0.0
+    kept = [xy[0]]
+    for p in xy[1:]:
+        if np.hypot(*(p - kept[-1])) >= min_segment:
+            kept.append(p)
+    if len(kept) < 3:
+        return 0.0
+    seg = np.diff(np.array(kept), axis=0)
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    change = (np.diff(heading) + np.pi) % (2.0 * np.pi) - np.pi
+    return float(np.sum(np.abs(change)))
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """What one episode came to. Lengths in metres, times in seconds, angles in degrees."""
+
+    scene: str
+    episode: int
+    outcome: str
+    """One of ``OUTCOMES``."""
+    steps: int
+    sim_time: float
+    reward: float
+    path_length: float
+    start_target_distance: float
+    turning_angle_deg: float
+    min_clearance: float
+    collision_partner: str | None
+    predictor_fallbacks: int
+
+    def as_dict(self) -> dict:
+        """Plain dict (JSON/CSV friendly)."""
+        return asdict(self)
+
+
+def outcome_of(info: dict, truncated: bool) -> str:
+    """Outcome label of an episode from the task's last ``info`` and whether the time limit ended it."""
+    if info.get("diverged"):
+        return "diverged"
+    if info.get("collision"):
+        return "collision"
+    if info.get("left_surface"):
+        return "off_surface"
+    if info.get("reached_goal"):
+        return "goal"
+    if truncated:
+        return "timeout"
+    raise ValueError(f"episode ended without an outcome: {info}")
+
+
+def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
+    """Rates of every outcome, mean reward, and mean path length and turning angle of successful episodes."""
+    if not results:
+        raise ValueError("no episodes to summarize")
+    n = len(results)
+    out: dict[str, float] = {"episodes": float(n)}
+    for o in OUTCOMES:
+        out[f"{o}_rate"] = sum(r.outcome == o for r in results) / n
+    ok = [r for r in results if r.outcome == "goal"]
+    out["mean_reward"] = float(np.mean([r.reward for r in results]))
+    out["path_length"] = float(np.mean([r.path_length for r in ok])) if ok else float("nan")
+    out["path_ratio"] = (
+        float(np.mean([r.path_length / max(r.start_target_distance, 1e-9) for r in ok]))
+        if ok
+        else float("nan")
+    )
+    out["turning_angle_deg"] = float(np.mean([r.turning_angle_deg for r in ok])) if ok else float("nan")
+    out["time_to_goal"] = float(np.mean([r.sim_time for r in ok])) if ok else float("nan")
+    out["min_clearance"] = float(np.min([r.min_clearance for r in results]))
+    return out

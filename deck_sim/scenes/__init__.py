@@ -1,0 +1,385 @@
+"""Scene specifications as data: ``deck1``, ``deck2`` and ``square`` TOML files, validated on load.
+
+Every constant of a scene lives in its TOML file: obstacle counts, where things spawn, the movers' speeds, the
+episode limits and every reward constant (paper eq. 10-16). ``load_scene`` checks each field's type and range and
+raises ``SceneSpecError`` naming the file, the field and the offending value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import tomllib
+
+SCENE_DIR = Path(__file__).parent
+
+
+class SceneSpecError(ValueError):
+    """A scene name is unknown or a scene file is malformed; the message names the field and value."""
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """The agent: its vehicle, where it starts, where its target lies and how far one action reaches."""
+
+    vehicle: Literal["aircraft", "pedestrian"]
+    """Vehicle model: the wheeled ``aircraft`` (deck) or a holonomic ``pedestrian`` (square)."""
+    start_sites: tuple[str, ...]
+    """Names of arena sites the agent starts at (one drawn per episode)."""
+    target_sites: tuple[str, ...]
+    """Names of arena sites that may be the target (one drawn per episode, within the distance bounds)."""
+    reach: float
+    """Metres: an action of norm 1 asks for this displacement over one decision period."""
+    goal_radius: float
+    """Metres: the episode succeeds when the agent's reference point is this close to the target."""
+    radius: float
+    """Metres: radius of the disc that stands for the agent in clearance, reward and planning."""
+    start_jitter: float = 0.0
+    """Metres: uniform jitter of the start position in x and y."""
+    yaw_jitter: float = 0.0
+    """Radians: uniform jitter of the start heading."""
+    target_jitter: float = 0.0
+    """Metres: uniform jitter of the target position in x and y."""
+    min_target_distance: float = 0.0
+    """Metres: lower bound on the straight-line start-target distance."""
+    max_target_distance: float = 1e9
+    """Metres: upper bound on the straight-line start-target distance."""
+
+
+@dataclass(frozen=True)
+class StaticSpec:
+    """Static obstacles: parked aircraft or kiosks in named slots, plus standing groups placed at random."""
+
+    slot_prefix: str
+    """Arena sites whose names start with this are the slots that slotted obstacles fill."""
+    slotted: int
+    """How many slots are filled per episode (drawn without replacement)."""
+    slotted_kind: Literal["parked_aircraft", "kiosk"]
+    """What stands in a slot."""
+    scattered: int = 0
+    """How many standing groups are placed uniformly at random on free ground (rejection sampling)."""
+    scatter_clearance: float = 3.0
+    """Metres of free space kept between a scattered group and anything else, starts and targets included."""
+
+    @property
+    def count(self) -> int:
+        """Number of static obstacles per episode."""
+        return self.slotted + self.scattered
+
+
+@dataclass(frozen=True)
+class MoverSpec:
+    """Dynamic obstacles (paper's assumptions 1-3): go to a special spot, dwell a random time, go on."""
+
+    tractors: int = 0
+    """Deck tractors (wheeled, differential drive)."""
+    aircraft: int = 0
+    """Taxiing aircraft (the agent's own vehicle model, driven by a mover script)."""
+    pedestrians: int = 0
+    """Walking pedestrians (holonomic)."""
+    spots: tuple[str, ...] = ()
+    """Names of the special spots the movers travel between."""
+    speed_range: tuple[float, float] = (2.0, 4.0)
+    """m/s: each trip's cruise speed is drawn uniformly from this range."""
+    dwell_range: tuple[float, float] = (3.0, 15.0)
+    """Seconds: each dwell at a spot lasts a uniform draw from this range."""
+    accel: float = 1.0
+    """m/s^2: acceleration the movers' scripts ask for (their actuators cap it physically too)."""
+    decel: float = 1.0
+    """m/s^2: braking they plan with when stopping at a spot."""
+    turn_rate: float = 0.6
+    """rad/s: largest turn rate the wheeled movers' scripts command."""
+    clearance: float = 3.0
+    """Metres: how far their planned routes stay from static obstacles (beyond their own radius)."""
+    yield_distance: float = 8.0
+    """Metres: a mover brakes when another mover or the agent is this close ahead of it (0 disables)."""
+    yield_to_agent: bool = True
+    """Whether movers also yield to the agent (deck crews stop for a taxiing aircraft)."""
+    agent_yield_distance: float = 6.0
+    """Metres: a mover brakes at once when the agent is this close ahead of it (an emergency stop; keep it
+    short so that movers do not wait on an agent that waits on them)."""
+    spawn_near_agent: int = 0
+    """How many movers start on free ground within ``near_radius`` of the agent instead of at spots."""
+    spawn_random: int = 0
+    """How many movers start on free ground anywhere (paper's deck 2: 4 placed at random)."""
+    near_radius: float = 20.0
+    """Metres: radius around the agent's start for ``spawn_near_agent``."""
+
+    @property
+    def count(self) -> int:
+        """Number of dynamic obstacles."""
+        return self.tractors + self.aircraft + self.pedestrians
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """Constants of the APF-shaped reward, paper eq. 10-16 (see ``deck_sim.tasks.rewards``)."""
+
+    attraction_max: float
+    """L, metres: cap of the target-attraction term r1 per step."""
+    attraction_min: float
+    """l, metres: floor of |r1| per step (the sign follows the progress)."""
+    repulsion_max: float
+    """H, metres: cap of the obstacle-repulsion term r2 per step."""
+    repulsion_min: float
+    """h, metres: floor of |r2| per step inside the influence radius."""
+    influence_radius: float
+    """Metres of clearance within which the nearest obstacle repels (no r2 beyond)."""
+    collision: float = -50.0
+    """r3: reward on collision (and on leaving the deck)."""
+    goal: float = 200.0
+    """r4: reward on reaching the target."""
+    w_attraction: float = 1.0
+    """lambda1: weight of r1."""
+    w_repulsion: float = 1.0
+    """lambda2: weight of r2."""
+    w_collision: float = 1.0
+    """lambda3: weight of r3."""
+    w_goal: float = 1.0
+    """lambda4: weight of r4."""
+    progress_deadband: float = 0.01
+    """Metres: |progress| below this counts as none (r1 = 0, r2 = 0), so that a standing agent is not paid +l
+    or charged -l by numerical noise; the paper's d >= 0 branch is otherwise kept."""
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Timing, history and prediction of the task."""
+
+    time_limit: float
+    """Seconds of simulated time before the episode is truncated."""
+    control_period: float = 0.5
+    """Seconds between decisions (the paper's step)."""
+    physics_timestep: float = 0.02
+    """Seconds per MuJoCo step; must divide ``control_period``."""
+    history: int = 10
+    """Samples of each mover's past positions kept for the predictor."""
+    horizon: int = 10
+    """Predicted steps N of each mover (at the control period)."""
+    predictor: Literal["none", "constant_velocity", "oracle", "mpc"] = "constant_velocity"
+    """Which predictor fills the observation's predicted part."""
+    collision_checks: int = 5
+    """Contact checks per control step (the fused physics substeps are split this many times)."""
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One scene of the suite."""
+
+    name: str
+    """Short name, e.g. ``deck1``."""
+    arena: Literal["deck", "square"]
+    """Which arena model the scene is played on."""
+    description: str
+    agent: AgentSpec
+    static: StaticSpec
+    movers: MoverSpec
+    reward: RewardSpec
+    episode: EpisodeSpec
+    paper_counts: tuple[int, int] = field(default=(0, 0))
+    """(static, dynamic) obstacle counts of the paper's scene, checked against the spec."""
+
+
+_SECTIONS = {
+    "agent": AgentSpec,
+    "static": StaticSpec,
+    "movers": MoverSpec,
+    "reward": RewardSpec,
+    "episode": EpisodeSpec,
+}
+
+
+def _convert(value: Any, annotation: Any, where: str) -> Any:
+    """Check ``value`` against a field annotation (from a string annotation resolved by typing)."""
+    origin = typing.get_origin(annotation)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise SceneSpecError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise SceneSpecError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SceneSpecError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise SceneSpecError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise SceneSpecError(f"{where}: expected a string, got {value!r}")
+        return value
+    if origin is Literal:
+        allowed = typing.get_args(annotation)
+        if value not in allowed:
+            raise SceneSpecError(f"{where}: expected one of {list(allowed)}, got {value!r}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(annotation)
+        if not isinstance(value, list | tuple):
+            raise SceneSpecError(f"{where}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise SceneSpecError(f"{where}: expected {len(args)} values, got {value!r}")
+        return tuple(
+            _convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if origin in (typing.Union, types.UnionType):  # pragma: no cover - no optional fields today
+        raise SceneSpecError(f"{where}: unsupported annotation {annotation}")
+    raise SceneSpecError(f"{where}: unsupported annotation {annotation}")  # pragma: no cover
+
+
+def _build(cls: type, table: Any, where: str) -> Any:
+    """Make dataclass ``cls`` from a TOML table, naming unknown, missing and ill-typed fields."""
+    if not isinstance(table, dict):
+        raise SceneSpecError(f"{where}: expected a table, got {table!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise SceneSpecError(f"{where}: unknown field(s) {unknown}; known fields are {sorted(fields)}")
+    kwargs = {}
+    for name, f in fields.items():
+        if name in _SECTIONS and cls is SceneSpec:
+            continue
+        if name not in table:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise SceneSpecError(f"{where}: missing required field {name!r}")
+            continue
+        kwargs[name] = _convert(table[name], hints[name], f"{where}.{name}")
+    return kwargs
+
+
+def _check(condition: bool, where: str, message: str) -> None:
+    if not condition:
+        raise SceneSpecError(f"{where}: {message}")
+
+
+def _validate(spec: SceneSpec, src: str) -> None:
+    """Semantic checks across fields (ranges, divisibility, counts)."""
+    a, s, m, r, e = spec.agent, spec.static, spec.movers, spec.reward, spec.episode
+    for name in ("reach", "goal_radius", "radius"):
+        _check(getattr(a, name) > 0, f"{src} [agent].{name}", f"must be > 0, got {getattr(a, name)}")
+    _check(len(a.start_sites) > 0, f"{src} [agent].start_sites", "must name at least one site")
+    _check(len(a.target_sites) > 0, f"{src} [agent].target_sites", "must name at least one site")
+    _check(
+        a.min_target_distance <= a.max_target_distance,
+        f"{src} [agent].min_target_distance",
+        f"{a.min_target_distance} exceeds max_target_distance {a.max_target_distance}",
+    )
+    _check(s.slotted >= 0 and s.scattered >= 0, f"{src} [static]", "counts must be >= 0")
+    for name in ("speed_range", "dwell_range"):
+        lo, hi = getattr(m, name)
+        _check(0 <= lo <= hi, f"{src} [movers].{name}", f"expected 0 <= min <= max, got {[lo, hi]}")
+    _check(m.speed_range[1] > 0, f"{src} [movers].speed_range", "maximum speed must be > 0")
+    for name in ("accel", "decel", "turn_rate"):
+        _check(getattr(m, name) > 0, f"{src} [movers].{name}", f"must be > 0, got {getattr(m, name)}")
+    _check(m.count == 0 or len(m.spots) >= 2, f"{src} [movers].spots", "movers need at least two spots")
+    _check(
+        m.spawn_near_agent + m.spawn_random <= m.count,
+        f"{src} [movers].spawn_near_agent",
+        "spawn_near_agent + spawn_random exceeds the number of movers",
+    )
+    _check(
+        0 < r.attraction_min <= r.attraction_max,
+        f"{src} [reward].attraction_min",
+        f"expected 0 < l <= L, got l={r.attraction_min}, L={r.attraction_max}",
+    )
+    _check(
+        0 < r.repulsion_min <= r.repulsion_max,
+        f"{src} [reward].repulsion_min",
+        f"expected 0 < h <= H, got h={r.repulsion_min}, H={r.repulsion_max}",
+    )
+    _check(
+        r.influence_radius > 0, f"{src} [reward].influence_radius", f"must be > 0, got {r.influence_radius}"
+    )
+    _check(e.time_limit > 0, f"{src} [episode].time_limit", f"must be > 0, got {e.time_limit}")
+    _check(e.control_period > 0 and e.physics_timestep > 0, f"{src} [episode]", "periods must be > 0")
+    ratio = e.control_period / e.physics_timestep
+    _check(
+        abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1,
+        f"{src} [episode].physics_timestep",
+        f"{e.physics_timestep} does not divide control_period {e.control_period}",
+    )
+    _check(
+        1 <= e.collision_checks <= round(ratio),
+        f"{src} [episode].collision_checks",
+        f"expected 1..{round(ratio)}, got {e.collision_checks}",
+    )
+    _check(e.history >= 2, f"{src} [episode].history", f"must be >= 2, got {e.history}")
+    _check(e.horizon >= 1, f"{src} [episode].horizon", f"must be >= 1, got {e.horizon}")
+    if spec.paper_counts != (0, 0):
+        _check(
+            (s.count, m.count) == spec.paper_counts,
+            f"{src} paper_counts",
+            f"scene has {s.count} static and {m.count} dynamic obstacles, paper_counts says {spec.paper_counts}",
+        )
+
+
+def parse_scene(data: dict[str, Any], src: str = "<scene>") -> SceneSpec:
+    """Build and validate a ``SceneSpec`` from a parsed TOML document."""
+    top = _build(SceneSpec, data, src)
+    sections = {}
+    for key, cls in _SECTIONS.items():
+        if key not in data:
+            raise SceneSpecError(f"{src}: missing section [{key}]")
+        sections[key] = cls(**_build(cls, data[key], f"{src} [{key}]"))
+    spec = SceneSpec(**top, **sections)
+    _validate(spec, src)
+    return spec
+
+
+def scene_names() -> list[str]:
+    """Names of the scenes shipped with the package."""
+    return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
+
+
+def load_scene(name_or_path: str | Path, **overrides: Any) -> SceneSpec:
+    """Load a shipped scene by name (``deck1``) or any scene file by path, then apply ``overrides``.
+
+    Overrides name a section and field with a double underscore, e.g. ``episode__predictor="oracle"`` or
+    ``movers__tractors=0``; they are validated like the file's own fields.
+
+    Raises:
+        SceneSpecError: unknown name, unreadable or malformed file, bad override.
+    """
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        if str(name_or_path) not in scene_names():
+            raise SceneSpecError(
+                f"unknown scene {str(name_or_path)!r}; known scenes: {', '.join(scene_names())}"
+            )
+        path = SCENE_DIR / f"{name_or_path}.toml"
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise SceneSpecError(f"scene file {path} does not exist") from err
+    except tomllib.TOMLDecodeError as err:
+        raise SceneSpecError(f"{path.name}: not valid TOML: {err}") from err
+    for key, value in overrides.items():
+        section, sep, name = key.partition("__")
+        if not sep or section not in _SECTIONS:
+            raise SceneSpecError(
+                f"override {key!r}: expected <section>__<field> with section in {sorted(_SECTIONS)}"
+            )
+        data.setdefault(section, {})[name] = value
+    if set(overrides) & _COUNT_FIELDS:
+        data.pop("paper_counts", None)  # counts overridden: no longer the paper's scene
+    return parse_scene(data, path.name)
+
+
+_COUNT_FIELDS = {
+    "static__slotted",
+    "static__scattered",
+    "movers__tractors",
+    "movers__aircraft",
+    "movers__pedestrians",
+}

@@ -1,0 +1,35 @@
+"""Test configuration: no rendering in the test process (render tests run the CLI in a subprocess)."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+SCENES = ("deck1", "deck2", "square")
+
+
+@pytest.fixture(scope="session")
+def envs():
+    """One environment per scene, built once (construction costs about a second)."""
+    import deck_sim
+
+    return {name: deck_sim.load(name, seed=0) for name in SCENES}
+
+
+def run_steps(env, n, actions=None, seed=0):
+    """Reset and step ``env`` n times with seeded random actions; return (observations, rewards)."""
+    rng = np.random.default_rng(seed)
+    ts = env.reset()
+    obs, rewards = [ts.observation], []
+    for i in range(n):
+        a = actions[i] if actions is not None else rng.uniform(-1, 1, 2)
+        ts = env.step(a)
+        obs.append(ts.observation)
+        rewards.append(ts.reward)
+        if ts.last():
+            ts = env.reset()
+            obs.append(ts.observation)
+    return obs, rewards

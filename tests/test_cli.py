@@ -1,0 +1,92 @@
+"""The command line: scenes, run (metrics and files), render (in a subprocess with EGL), clear errors."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from training.cli import main
+
+
+def test_scenes_lists_every_scene(capsys):
+    assert main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    for name in ("deck1", "deck2", "square"):
+        assert name in out
+
+
+def test_run_prints_metrics_and_writes_results(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert (
+        main(
+            [
+                "run",
+                "--scene",
+                "deck1",
+                "--policy",
+                "zero",
+                "--episodes",
+                "1",
+                "--seed",
+                "1",
+                "--quiet",
+                "--out",
+                str(out),
+                "--predictor",
+                "none",
+            ]
+        )
+        == 0
+    )
+    text = capsys.readouterr().out
+    for word in ("success", "collision", "timeout", "path length", "turning angle"):
+        assert word in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["summary"]["timeout_rate"] == 1.0  # standing still never arrives
+    assert (out / "episodes.csv").read_text().count("\n") == 2
+
+
+def test_bad_scene_and_policy_give_a_clear_error(capsys):
+    assert main(["run", "--scene", "deck7", "--episodes", "1", "--quiet"]) == 2
+    assert "unknown scene 'deck7'" in capsys.readouterr().err
+    assert main(["run", "--scene", "deck1", "--policy", "wishful", "--episodes", "1", "--quiet"]) == 2
+    assert "unknown policy 'wishful'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_writes_a_video_and_a_png(tmp_path):
+    video = tmp_path / "ep.mp4"
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "training.cli",
+            "render",
+            "--scene",
+            "deck1",
+            "--out",
+            str(video),
+            "--steps",
+            "3",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--top-height",
+            "120",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    import imageio.v3 as iio
+
+    frames = iio.imread(video)
+    assert frames.shape[0] == 4 and frames.shape[1:] == (120, 160, 3)
+    png = iio.imread(video.with_suffix(".png"))
+    assert png.shape[0] == 120 and png.shape[1] > 3 * 120  # the deck is long

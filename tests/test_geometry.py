@@ -1,0 +1,91 @@
+"""Property tests of the planar geometry: footprint distances and visibility-graph paths."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, polyline_length
+
+coord = st.floats(-50, 50, allow_nan=False)
+size = st.floats(0.1, 10, allow_nan=False)
+angle = st.floats(-np.pi, np.pi, allow_nan=False)
+
+
+def box(cx, cy, hx, hy, yaw=0.0, r=0.0) -> Footprints:
+    return Footprints(np.array([[cx, cy]]), np.array([[hx, hy]]), np.array([yaw]), np.array([r]))
+
+
+@given(cx=coord, cy=coord, r=size, px=coord, py=coord)
+def test_circle_distance_is_centre_distance_minus_radius(cx, cy, r, px, py):
+    fp = Footprints(np.array([[cx, cy]]), np.zeros((1, 2)), np.zeros(1), np.array([r]))
+    d = fp.distance(np.array([px, py]))[0, 0]
+    assert d == pytest.approx(np.hypot(px - cx, py - cy) - r, abs=1e-9)
+
+
+@given(hx=size, hy=size, yaw=angle, t=st.floats(0, 1), side=st.integers(0, 3))
+def test_box_distance_is_zero_on_the_boundary_and_negative_inside(hx, hy, yaw, t, side):
+    fp = box(3.0, -2.0, hx, hy, yaw)
+    local = [
+        (-hx + 2 * hx * t, hy),
+        (-hx + 2 * hx * t, -hy),
+        (hx, -hy + 2 * hy * t),
+        (-hx, -hy + 2 * hy * t),
+    ][side]
+    c, s = np.cos(yaw), np.sin(yaw)
+    p = np.array([3.0 + c * local[0] - s * local[1], -2.0 + s * local[0] + c * local[1]])
+    assert fp.distance(p)[0, 0] == pytest.approx(0.0, abs=1e-9)
+    assert fp.distance(np.array([3.0, -2.0]))[0, 0] == pytest.approx(-min(hx, hy))
+
+
+@given(hx=size, hy=size, yaw=angle, r=st.floats(0, 3), px=coord, py=coord)
+def test_octagon_encloses_the_rounded_box(hx, hy, yaw, r, px, py):
+    fp = box(0.0, 0.0, hx, hy, yaw, r)
+    normals, offsets = fp.octagons()
+    inside_box = fp.distance(np.array([px, py]))[0, 0] < 0
+    inside_oct = bool(np.all(normals[0] @ np.array([px, py]) < offsets[0] + 1e-9))
+    assert not inside_box or inside_oct
+
+
+def test_straight_path_when_nothing_is_in_the_way():
+    g = VisibilityGraph(box(0, 20, 2, 2), clearance=1.0, bounds=np.array([[-50, -50], [50, 50]]))
+    path = g.shortest_path(np.array([-10.0, 0.0]), np.array([10.0, 0.0]))
+    np.testing.assert_allclose(path, [[-10, 0], [10, 0]])
+
+
+@settings(max_examples=50, deadline=None)
+@given(hx=st.floats(1, 8), hy=st.floats(1, 8), yaw=angle, clearance=st.floats(0.2, 3), y0=st.floats(-1, 1))
+def test_path_around_a_box_keeps_its_clearance_and_is_no_shorter_than_straight(hx, hy, yaw, clearance, y0):
+    fp = box(0.0, 0.0, hx, hy, yaw)
+    start, goal = np.array([-20.0, y0]), np.array([20.0, -y0])
+    g = VisibilityGraph(fp, clearance=clearance, bounds=np.array([[-60, -60], [60, 60]]))
+    path = g.shortest_path(start, goal)
+    assert polyline_length(path) >= np.linalg.norm(goal - start) - 1e-9
+    # sample the path densely: every point keeps the clearance (up to the octagon's over-approximation)
+    pts = np.concatenate([np.linspace(a, b, 60) for a, b in zip(path[:-1], path[1:], strict=True)])
+    assert fp.distance(pts).min() >= clearance - 1e-6
+
+
+def test_known_layout_shortest_path_length():
+    # a wall 0.2 m thick from y = -5 to 5 across the straight line: the way round passes two of its corners
+    wall = box(0.0, 0.0, 0.1, 5.0)
+    g = VisibilityGraph(wall, clearance=0.0, bounds=np.array([[-50, -50], [50, 50]]), node_margin=1e-6)
+    path = g.shortest_path(np.array([-5.0, 0.0]), np.array([5.0, 0.0]))
+    assert polyline_length(path) == pytest.approx(2 * np.hypot(4.9, 5.0) + 0.2, abs=1e-3)
+
+
+def test_start_inside_an_obstacle_may_only_leave_it():
+    fp = box(0.0, 0.0, 3.0, 3.0)
+    g = VisibilityGraph(fp, clearance=2.0, bounds=np.array([[-50, -50], [50, 50]]))
+    start = np.array([-4.5, 0.0])  # inside the grown box (edge at -5), on its left side
+    path = g.shortest_path(start, np.array([20.0, 0.0]))
+    first = path[1] - path[0]
+    assert first @ (start - fp.centers[0]) > 0  # heads away from the centre, not through the box
+    assert len(path) > 2
+
+
+def test_unreachable_goal_raises():
+    ring = Footprints.concatenate([box(0, 6, 6, 1), box(0, -6, 6, 1), box(6, 0, 1, 6), box(-6, 0, 1, 6)])
+    g = VisibilityGraph(ring, clearance=0.5, bounds=np.array([[-50, -50], [50, 50]]))
+    with pytest.raises(NoPathError):
+        g.shortest_path(np.array([20.0, 20.0]), np.array([0.0, 0.0]))

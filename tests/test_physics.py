@@ -1,0 +1,176 @@
+"""Physics of the models and the task: no warnings, the aircraft drives and turns, movers go, dwell and leave,
+collisions end the episode, bad actions are refused."""
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import deck_sim
+from deck_sim.behaviour import DRIVING, DWELLING
+from deck_sim.tasks.navigate import InvalidActionError
+
+ASSETS = Path(deck_sim.__file__).parent / "assets"
+SCENE_FILES = sorted(ASSETS.glob("scene_*.xml"))
+
+
+def _yaw(quat: np.ndarray) -> float:
+    w, x, y, z = quat
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+@pytest.mark.parametrize("path", SCENE_FILES, ids=[p.stem for p in SCENE_FILES])
+def test_every_scene_file_steps_two_seconds_with_random_controls_without_warnings(path):
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    if model.nkey:
+        mujoco.mj_resetDataKeyframe(model, data, 0)
+    rng = np.random.default_rng(0)
+    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
+    for _ in range(int(2.0 / model.opt.timestep)):
+        if model.nu:
+            data.ctrl[:] = rng.uniform(lo, hi)
+        mujoco.mj_step(model, data)
+    assert [int(w.number) for w in data.warning] == [0] * len(data.warning)
+    assert np.all(np.isfinite(data.qpos))
+
+
+def _aircraft():
+    model = mujoco.MjModel.from_xml_path(str(ASSETS / "scene_aircraft.xml"))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    model.opt.timestep = deck_sim.load_scene("deck1").episode.physics_timestep
+    return model, data
+
+
+def test_aircraft_drives_a_straight_line():
+    model, data = _aircraft()
+    data.ctrl[:] = [0.0, 0.3, 0.0, 0.0]  # 9 kN of thrust, no steer, no brakes
+    mujoco.mj_step(model, data, nstep=int(10.0 / model.opt.timestep))
+    assert data.qpos[0] > 20.0  # it rolled forward
+    assert abs(data.qpos[1]) < 0.01 and abs(_yaw(data.qpos[3:7])) < 1e-3  # dead straight
+    assert abs(data.qpos[2] - 1.8) < 0.01  # on its wheels
+
+
+def test_aircraft_turns_by_its_nose_wheel_at_the_kinematic_rate():
+    model, data = _aircraft()
+    data.ctrl[:] = [0.0, 0.3, 0.0, 0.0]
+    mujoco.mj_step(model, data, nstep=int(6.0 / model.opt.timestep))
+    data.ctrl[:] = [0.3, 0.1, 0.0, 0.0]  # 0.3 rad nose-wheel steer
+    mujoco.mj_step(model, data, nstep=int(5.0 / model.opt.timestep))
+    speed = np.hypot(*data.qvel[:2])
+    kinematic = speed * np.tan(data.qpos[7]) / 5.4  # bicycle model, wheelbase 5.4 m
+    assert data.qvel[5] > 0.1  # turning left
+    assert data.qvel[5] == pytest.approx(kinematic, rel=0.03)
+
+
+def test_aircraft_brakes_to_a_stop():
+    model, data = _aircraft()
+    data.ctrl[:] = [0.0, 0.5, 0.0, 0.0]
+    mujoco.mj_step(model, data, nstep=int(6.0 / model.opt.timestep))
+    assert np.hypot(*data.qvel[:2]) > 3.0
+    data.ctrl[:] = [0.0, 0.0, 1.0, 1.0]
+    mujoco.mj_step(model, data, nstep=int(6.0 / model.opt.timestep))
+    assert np.hypot(*data.qvel[:2]) < 0.05
+
+
+def test_tractor_drives_and_turns_on_its_wheels():
+    model = mujoco.MjModel.from_xml_path(str(ASSETS / "scene_tractor.xml"))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    data.ctrl[:] = [8.0, 8.0]  # wheel speeds, rad/s: 3.2 m/s
+    mujoco.mj_step(model, data, nstep=int(5.0 / model.opt.timestep))
+    assert data.qvel[0] == pytest.approx(3.2, rel=0.03)
+    data.ctrl[:] = [5.0, 7.0]
+    mujoco.mj_step(model, data, nstep=int(8.0 / model.opt.timestep))
+    assert data.qvel[5] == pytest.approx(0.5, rel=0.12)  # (7 - 5) rad/s * 0.4 m / 1.6 m track
+
+
+def test_a_mover_reaches_a_spot_dwells_and_leaves():
+    env = deck_sim.load("deck1", seed=5, movers__tractors=1, movers__aircraft=0, static__slotted=15)
+    env.reset()
+    task = env.task
+    behaviour = task._behaviour
+    modes, positions, spots = [], [], []
+    for _ in range(400):
+        env.step(np.zeros(2))
+        modes.append(int(behaviour.mode[0]))
+        positions.append(task.last_info["mover_positions"][0].copy())
+        spots.append(int(behaviour.spot[0]))
+        if DWELLING in modes and modes[-12:] == [DWELLING] + [DRIVING] * 11:
+            break
+    modes = np.array(modes)
+    first_dwell = int(np.argmax(modes == DWELLING))
+    assert modes[0] == DRIVING and first_dwell > 0, "the mover never arrived"
+    spot_xy = task._spot_xy[spots[first_dwell]]
+    assert np.linalg.norm(positions[first_dwell] - spot_xy) < 1.5  # stopped at its spot
+    dwell_end = first_dwell + int(np.argmax(modes[first_dwell:] == DRIVING))
+    assert dwell_end > first_dwell + 4  # it dwelt at least 3 s (6 steps of 0.5 s, minus arrival rounding)
+    assert np.ptp(np.array(positions[first_dwell + 1 : dwell_end]), axis=0).max() < 0.3  # standing still
+    assert spots[dwell_end] != spots[first_dwell]  # left for another spot
+    assert np.linalg.norm(positions[-1] - spot_xy) > 2.0  # and is on its way (5 s after leaving)
+
+
+def test_driving_into_a_parked_aircraft_ends_the_episode_with_the_collision_reward():
+    env = deck_sim.load("deck1", seed=3, movers__tractors=0, movers__aircraft=0, movers__spots=[])
+    task = env.task
+    for _ in range(20):
+        ts = env.reset()
+        view = task.planner_view()
+        # the nearest parked aircraft (not the island): steer straight at it
+        parked = view.statics.centers[:-1]
+        target = parked[np.argmin(np.linalg.norm(parked - view.agent_xy, axis=1))]
+        if np.linalg.norm(target - view.agent_xy) < 60:
+            break
+    for _ in range(200):
+        direction = target - task.last_info["position"]
+        ts = env.step(direction / np.linalg.norm(direction))
+        if ts.last():
+            break
+    info = task.last_info
+    assert info["collision"] is not None and info["collision"].startswith("parked_aircraft")
+    assert ts.last() and ts.discount == 0.0
+    assert info["reward_terms"]["r3"] == task.spec.reward.collision
+    assert ts.reward == pytest.approx(info["reward_terms"]["total"])
+
+
+@pytest.mark.parametrize("bad", [[np.nan, 0.0], [0.0, np.inf], [1.5, 0.0], [0.0, -2.0]])
+def test_nan_infinite_or_out_of_range_actions_raise_a_clear_error(envs, bad):
+    env = envs["deck1"]
+    env.reset()
+    with pytest.raises(InvalidActionError, match="finite|\\[-1, 1\\]"):
+        env.step(np.array(bad))
+    with pytest.raises(InvalidActionError, match="shape"):
+        env.step(np.zeros(3))
+
+
+def test_physics_divergence_ends_the_episode_cleanly_and_is_flagged(envs):
+    env = envs["deck1"]
+    env.reset()
+    env.step(np.array([0.5, 0.0]))
+    env.physics.data.qvel[:] = 1e12  # an impossible state: MuJoCo warns and resets
+    ts = env.step(np.array([0.5, 0.0]))
+    assert ts.last()
+    assert env.task.last_info["diverged"]
+    assert ts.discount == 0.0
+    ts = env.reset()  # and the environment carries on
+    assert np.all(np.isfinite(ts.observation["position"]))
+
+
+def test_the_pedestrian_agent_walks_where_it_is_asked_whatever_its_start_heading():
+    env = deck_sim.load(
+        "square",
+        seed=1000,
+        movers__pedestrians=0,
+        movers__spawn_near_agent=0,
+        static__scattered=0,
+        static__slotted=0,
+    )
+    for _ in range(3):
+        env.reset()
+        start = env.task.last_info["position"].copy()
+        for _ in range(6):
+            env.step(np.array([1.0, 0.0]))  # east at the full reach
+        moved = env.task.last_info["position"] - start
+        assert moved[0] > 3.0 and abs(moved[1]) < 0.05

@@ -1,0 +1,99 @@
+"""The simple predictors (none, constant velocity, oracle) and the task's prediction plumbing."""
+
+import numpy as np
+import pytest
+
+import deck_sim
+from deck_sim.control.prediction import (
+    ConstantVelocity,
+    NoPrediction,
+    Oracle,
+    PredictionInputError,
+    make_predictor,
+)
+from deck_sim.types import ObstacleTracks
+
+
+def _straight(n=3, h=10, dt=0.5, v=(1.5, -0.5)):
+    t = np.arange(h) * dt
+    pos = np.stack([np.stack([i + v[0] * t, 2 * i + v[1] * t], axis=1) for i in range(n)])
+    return ObstacleTracks(dt=dt, positions=pos, kinds=np.zeros(n, dtype=int))
+
+
+def test_constant_velocity_is_exact_on_a_straight_track():
+    tracks = _straight()
+    pred = ConstantVelocity(horizon=6).predict(tracks)
+    steps = np.arange(1, 7) * 0.5
+    expected = tracks.current[:, None, :] + steps[None, :, None] * np.array([1.5, -0.5])
+    np.testing.assert_allclose(pred.positions, expected, atol=1e-12)
+    assert pred.n_fallbacks == 0
+
+
+def test_none_predicts_nothing_and_oracle_returns_the_future():
+    tracks = _straight()
+    assert NoPrediction().predict(tracks).positions.shape == (3, 0, 2)
+    future = np.random.default_rng(0).normal(size=(3, 4, 2))
+    out = Oracle(horizon=4).predict(ObstacleTracks(0.5, tracks.positions, tracks.kinds, future))
+    np.testing.assert_array_equal(out.positions, future)
+    with pytest.raises(PredictionInputError, match="needs tracks.future"):
+        Oracle(horizon=4).predict(tracks)
+
+
+@pytest.mark.parametrize(
+    "positions, message",
+    [
+        (np.full((2, 5, 2), np.nan), "NaN or infinite values for obstacle"),
+        (np.zeros((2, 0, 2)), "history too short"),
+        (np.zeros((2, 5)), "shape"),
+    ],
+)
+def test_malformed_histories_are_refused(positions, message):
+    tracks = ObstacleTracks(dt=0.5, positions=positions, kinds=np.zeros(2, dtype=int))
+    with pytest.raises(PredictionInputError, match=message):
+        ConstantVelocity().predict(tracks)
+
+
+def test_unknown_predictor_is_named():
+    with pytest.raises(ValueError, match="unknown predictor 'psychic'"):
+        make_predictor("psychic", 10, 0.5)
+
+
+def test_task_observation_holds_the_predictors_output():
+    env = deck_sim.load("deck1", seed=4, episode__predictor="constant_velocity")
+    env.reset()
+    for _ in range(6):
+        ts = env.step(np.array([0.3, 0.0]))
+    task = env.task
+    info = task.last_info
+    order = np.argsort(np.linalg.norm(info["mover_positions"] - info["position"], axis=1), kind="stable")
+    np.testing.assert_allclose(ts.observation["predicted"], info["prediction"][order] - info["position"])
+    np.testing.assert_allclose(
+        ts.observation["dynamic_obstacles"], info["mover_positions"][order] - info["position"]
+    )
+
+
+def test_oracle_sees_the_true_future_without_disturbing_the_episode():
+    kwargs = dict(seed=11, movers__yield_to_agent=False, episode__horizon=4)
+    oracle = deck_sim.load("deck2", episode__predictor="oracle", **kwargs)
+    plain = deck_sim.load("deck2", episode__predictor="none", **kwargs)
+    oracle.reset()
+    plain.reset()
+    predicted = []
+    truth = []
+    for _ in range(8):
+        a = np.array([0.0, 0.0])  # the agent brakes where it stands, as the oracle's copy assumes
+        oracle.step(a)
+        plain.step(a)
+        predicted.append(oracle.task.last_info["prediction"].copy())
+        truth.append(plain.task.last_info["mover_positions"].copy())
+        # simulating ahead must not change the episode itself
+        np.testing.assert_array_equal(oracle.task.last_info["mover_positions"], truth[-1])
+    # the prediction made at step k for step k + j equals what happened
+    for k in range(len(truth) - 4):
+        for j in range(1, 5):
+            np.testing.assert_allclose(predicted[k][:, j - 1], truth[k + j], atol=1e-9)
+
+
+def test_none_predictor_has_no_predicted_observation():
+    env = deck_sim.load("deck1", seed=0, episode__predictor="none")
+    assert "predicted" not in env.observation_spec()

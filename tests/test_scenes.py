@@ -1,0 +1,141 @@
+"""Scene specs: loading, overrides and errors that name the field and the value."""
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import deck_sim
+from deck_sim.scenes import SceneSpecError, load_scene, parse_scene, scene_names
+
+try:
+    import tomllib
+except ImportError:  # pragma: no cover
+    import tomli as tomllib
+
+from deck_sim.scenes import SCENE_DIR
+
+
+def _deck1() -> dict:
+    return tomllib.loads((SCENE_DIR / "deck1.toml").read_text())
+
+
+def test_shipped_scenes_load():
+    assert scene_names() == ["deck1", "deck2", "square"]
+    for name in scene_names():
+        spec = load_scene(name)
+        assert spec.name == name
+
+
+def test_unknown_scene_name_is_named():
+    with pytest.raises(SceneSpecError, match="unknown scene 'deck9'.*deck1, deck2, square"):
+        deck_sim.load("deck9")
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(SceneSpecError, match="does not exist"):
+        load_scene(tmp_path / "nope.toml")
+
+
+def test_invalid_toml_is_named(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = [unclosed\n")
+    with pytest.raises(SceneSpecError, match="bad.toml: not valid TOML"):
+        load_scene(bad)
+
+
+def test_wrong_type_names_field_and_value(tmp_path):
+    text = (SCENE_DIR / "deck1.toml").read_text().replace("reach = 3.0", 'reach = "far"')
+    path = tmp_path / "deck1x.toml"
+    path.write_text(text)
+    with pytest.raises(SceneSpecError, match=r"\[agent\]\.reach: expected a number, got 'far'"):
+        load_scene(path)
+
+
+def test_unknown_field_is_named():
+    data = _deck1()
+    data["movers"]["wheels"] = 4
+    with pytest.raises(SceneSpecError, match=r"unknown field\(s\) \['wheels'\]"):
+        parse_scene(data, "deck1.toml")
+
+
+def test_missing_section_and_field_are_named():
+    data = _deck1()
+    del data["reward"]
+    with pytest.raises(SceneSpecError, match=r"missing section \[reward\]"):
+        parse_scene(data)
+    data = _deck1()
+    del data["agent"]["reach"]
+    with pytest.raises(SceneSpecError, match="missing required field 'reach'"):
+        parse_scene(data)
+
+
+def test_semantic_errors_are_named():
+    data = _deck1()
+    data["episode"]["physics_timestep"] = 0.3
+    with pytest.raises(SceneSpecError, match="does not divide control_period"):
+        parse_scene(data)
+    data = _deck1()
+    data["static"]["slotted"] = 14
+    with pytest.raises(SceneSpecError, match="paper_counts"):
+        parse_scene(data)
+    data = _deck1()
+    data["reward"]["attraction_min"] = 5.0
+    with pytest.raises(SceneSpecError, match=r"l <= L"):
+        parse_scene(data)
+
+
+def test_overrides_apply_and_are_validated():
+    spec = load_scene("deck1", episode__predictor="oracle", episode__horizon=4)
+    assert spec.episode.predictor == "oracle" and spec.episode.horizon == 4
+    with pytest.raises(SceneSpecError, match="expected one of"):
+        load_scene("deck1", episode__predictor="crystal_ball")
+    with pytest.raises(SceneSpecError, match="override 'predictor'"):
+        load_scene("deck1", predictor="oracle")
+
+
+def test_unknown_site_is_named(tmp_path):
+    text = (SCENE_DIR / "deck1.toml").read_text().replace('"start_1",', '"start_99",')
+    path = tmp_path / "deck1y.toml"
+    path.write_text(text)
+    with pytest.raises(KeyError, match="no site 'start_99'"):
+        deck_sim.load(path)
+
+
+NUMBER_FIELDS = [
+    ("agent", "reach"),
+    ("agent", "goal_radius"),
+    ("movers", "accel"),
+    ("reward", "influence_radius"),
+    ("episode", "time_limit"),
+]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    field=st.sampled_from(NUMBER_FIELDS),
+    value=st.one_of(
+        st.text(max_size=5),
+        st.booleans(),
+        st.lists(st.integers(), max_size=2),
+        st.just(math.nan),
+        st.just(math.inf),
+    ),
+)
+def test_any_malformed_number_is_rejected_naming_the_field(field, value):
+    data = _deck1()
+    section, name = field
+    data[section][name] = value
+    with pytest.raises(SceneSpecError) as err:
+        parse_scene(data, "deck1.toml")
+    assert f"[{section}].{name}" in str(err.value)
+
+
+@settings(max_examples=40, deadline=None)
+@given(value=st.floats(min_value=-1e6, max_value=0.0, allow_nan=False))
+def test_non_positive_reach_is_rejected(value):
+    data = _deck1()
+    data["agent"]["reach"] = value
+    with pytest.raises(SceneSpecError, match=r"\[agent\]\.reach"):
+        parse_scene(data)
