@@ -52,7 +52,8 @@ class BehaviourParams:
     stuck_time: float = 12.0
     """Seconds of standing still while driving (not yielding) after which the mover picks another spot."""
     max_yield_time: float = 4.0
-    """Seconds a mover yields to another mover before it goes anyway (no deadlocks)."""
+    """Seconds a mover yields to another mover before it goes anyway (never into one at its nose), or waits for
+    the agent before it heads for another spot instead (no deadlocks)."""
 
 
 @dataclass
@@ -117,6 +118,8 @@ class MoverBehaviour:
         self.still_since = np.full(n, np.nan)
         self.yield_since = np.full(n, np.nan)
         self.yielding = np.zeros(n, dtype=bool)
+        self.agent_wait_since = np.full(n, np.nan)
+        self.give_up = np.zeros(n, dtype=bool)
         self.routes: list[np.ndarray] = [np.zeros((0, 2))] * n
         self.route_rest = [np.zeros(0)] * n  # remaining route length after each waypoint
         self.waypoint = np.zeros(n, dtype=int)
@@ -135,6 +138,7 @@ class MoverBehaviour:
         self._yield_reach[np.arange(n), np.arange(n)] = -1.0  # never yield to oneself
         if not self.params.yield_to_agent:
             self._yield_reach[:, n] = -1.0
+        self._contact_reach = fsum[:, :n] + 2.0  # closer than this ahead: always wait
         self._yield_width = rsum + 0.5
         self._yield_width[:, n] += 0.5
         self._any_holonomic = bool(np.any(self.holonomic))
@@ -221,11 +225,13 @@ class MoverBehaviour:
         self.still_since[moving | ~driving] = np.nan
         starting = ~moving & driving & np.isnan(self.still_since)
         self.still_since[starting] = t
-        stuck = driving & (t - self.still_since > p.stuck_time) & ~self.yielding
+        stuck = (driving & (t - self.still_since > p.stuck_time) & ~self.yielding) | self.give_up
         if events.any() or stuck.any():
             for i in np.flatnonzero(events | stuck):
                 if stuck[i] or (not driving[i] and t >= self.dwell_until[i]):
                     self._depart(i, positions[i], t)
+                    self.agent_wait_since[i] = np.nan
+                    self.give_up[i] = False
                 elif not last_wp[i]:
                     self.waypoint[i] += 1
                     self.aim[i] = self.routes[i][self.waypoint[i]]
@@ -288,16 +294,23 @@ class MoverBehaviour:
         fx, fy = fx[:, None], fy[:, None]
         along = rx * fx + ry * fy
         lateral = np.abs(rx * fy - ry * fx)
-        ahead = (along > 0.0) & (along < self._yield_reach) & (lateral < self._yield_width)
+        beside = lateral < self._yield_width
+        ahead = (along > 0.0) & (along < self._yield_reach) & beside
         movers = ahead[:, :n]
         # in a stand-off (each ahead of the other) the lower index goes first
         movers &= ~movers.T | self._lower
         by_mover = movers.any(axis=1)
-        # a mover that waited too long for another mover goes anyway
+        # a mover that waited too long for another mover goes anyway, but never into one right at its nose
         self.yield_since[~by_mover] = np.nan
         self.yield_since[by_mover & np.isnan(self.yield_since)] = t
-        by_mover &= (t - self.yield_since) <= p.max_yield_time
+        touching = ((along[:, :n] > 0.0) & (along[:, :n] < self._contact_reach) & beside[:, :n]).any(axis=1)
+        by_mover &= ((t - self.yield_since) <= p.max_yield_time) | touching
         self.yielding = (by_mover | ahead[:, n]) & driving
+        # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
+        for_agent = ahead[:, n] & driving
+        self.agent_wait_since[~for_agent] = np.nan
+        self.agent_wait_since[for_agent & np.isnan(self.agent_wait_since)] = t
+        self.give_up = for_agent & ((t - self.agent_wait_since) > p.max_yield_time)
         return self.yielding
 
     _STATE = (

@@ -34,8 +34,8 @@ class ScriptedPlanner:
     speeds: tuple[float, ...] = (1.0, 0.75, 0.5, 0.25, 0.0)
     parked_margin: float = 0.5
     """Metres kept beyond both discs from a mover predicted to stand still."""
-    patience: int = 4
-    """Decisions spent stopped for a mover that will not move before planning a way around it."""
+    parked_range: float = 60.0
+    """Metres: movers predicted to stand still closer than this are routed around like static obstacles."""
 
     def __post_init__(self) -> None:
         self.reset()
@@ -43,54 +43,45 @@ class ScriptedPlanner:
     def reset(self) -> None:
         """Forget the previous episode's obstacles."""
         self._graph: VisibilityGraph | None = None
-        self._statics_id: int | None = None
-        self._stopped = 0
-        self._detour: VisibilityGraph | None = None
-        self._detour_steps = 0
+        self._graph_key: tuple | None = None
+
+    def _parked(self, view: PlannerView) -> np.ndarray:
+        """(n,) movers predicted to stand still over the horizon and near enough to matter."""
+        future = view.mover_future
+        if future.shape[0] == 0 or future.shape[1] == 0:
+            return np.zeros(future.shape[0], dtype=bool)
+        travel = np.hypot(*(future[:, -1] - view.movers.centers).T)
+        near = np.hypot(*(view.movers.centers - view.agent_xy).T) < self.parked_range
+        return (travel < 1.0) & near
 
     def path(self, view: PlannerView) -> np.ndarray:
-        """Shortest path (m, 2) from the agent to the target around the statics (and parked movers on a detour)."""
-        if self._graph is None or self._statics_id != id(view.statics):
-            self._graph = VisibilityGraph(view.statics, view.agent_radius + self.margin, view.bounds)
-            self._statics_id = id(view.statics)
-            self._detour = None
-        graph = self._detour if self._detour is not None else self._graph
+        """Shortest path (m, 2) from the agent to the target around the statics and the parked movers."""
+        parked = self._parked(view)
+        fp = view.movers
+        # rebuild the graph only when the statics or the parked movers changed (positions to 0.5 m)
+        key = (id(view.statics), tuple(np.round(fp.centers[parked] * 2.0).astype(int).ravel().tolist()))
+        if self._graph is None or key != self._graph_key:
+            # pass a stopped vehicle closer than a static obstacle (``parked_margin`` beyond both discs, as the
+            # speed check does): the grown blocker then rarely contains the agent and the path goes around it
+            r = np.hypot(fp.half[parked, 0], fp.half[parked, 1]) + fp.radius[parked]
+            blockers = Footprints(fp.centers[parked], np.zeros((int(parked.sum()), 2)), fp.yaw[parked],
+                                  r + self.parked_margin + 0.25 - self.margin)
+            self._graph = VisibilityGraph(Footprints.concatenate([view.statics, blockers]),
+                                          view.agent_radius + self.margin, view.bounds)
+            self._graph_key = key
         try:
-            return graph.shortest_path(view.agent_xy, view.target_xy)
+            return self._graph.shortest_path(view.agent_xy, view.target_xy)
+        except NoPathError:
+            pass
+        # boxed in by parked movers: take the way round the statics alone and let the speed check wait
+        try:
+            return VisibilityGraph(view.statics, view.agent_radius + self.margin, view.bounds).shortest_path(
+                view.agent_xy, view.target_xy)
         except NoPathError:
             return np.stack([view.agent_xy, view.target_xy])
 
-    def _plan_detour(self, view: PlannerView) -> None:
-        """Treat movers predicted to stay put near the agent as obstacles for a while."""
-        future = view.mover_future
-        if future.shape[1] == 0:
-            return
-        travel = np.hypot(*(future[:, -1] - view.movers.centers).T)
-        near = np.hypot(*(view.movers.centers - view.agent_xy).T) < 4.0 * (view.agent_radius + 5.0)
-        parked = (travel < 1.0) & near
-        if not parked.any():
-            return
-        fp = view.movers
-        # pass a stopped vehicle closer than a static obstacle (``parked_margin`` beyond both discs, as the speed
-        # check does), so the agent is rarely inside the grown blocker and the path really goes around it
-        r = np.hypot(fp.half[parked, 0], fp.half[parked, 1]) + fp.radius[parked]
-        blockers = Footprints(
-            fp.centers[parked],
-            np.zeros((int(parked.sum()), 2)),
-            fp.yaw[parked],
-            r + self.parked_margin + 0.25 - self.margin,
-        )
-        self._detour = VisibilityGraph(
-            Footprints.concatenate([view.statics, blockers]), view.agent_radius + self.margin, view.bounds
-        )
-        self._detour_steps = 3 * self.patience
-
     def act(self, view: PlannerView) -> np.ndarray:
         """Action (2,) in [-1, 1]^2: the displacement to ask for over the next period, as a fraction of reach."""
-        if self._detour is not None:
-            self._detour_steps -= 1
-            if self._detour_steps <= 0:
-                self._detour = None
         path = self.path(view)
         scale = view.reach / 3.0
         carrot = _point_along(path, self.lookahead * max(scale, 0.25))
@@ -98,10 +89,6 @@ class ScriptedPlanner:
         dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
         direction = to_carrot / max(float(np.linalg.norm(to_carrot)), 1e-9)
         fraction, _ = self._safe_speed(view, path)
-        self._stopped = self._stopped + 1 if fraction == 0.0 else 0
-        if self._stopped >= self.patience and self._detour is None:
-            self._plan_detour(view)
-            self._stopped = 0
         # do not overshoot the goal
         step = min(fraction * view.reach, max(dist_goal - 0.25 * view.goal_radius, 0.0))
         return np.clip(direction * step / view.reach, -1.0, 1.0)

@@ -45,7 +45,7 @@ class AircraftLimits:
     speed_time: float = 0.6
     """s, time constant to close a speed error."""
     min_turn_speed: float = 1.0
-    """m/s kept while turning towards a direction more than 90 deg off the nose (an aircraft cannot pivot)."""
+    """m/s kept while turning towards a direction far off the nose (an aircraft cannot pivot)."""
 
 
 @dataclass(frozen=True)
@@ -107,11 +107,10 @@ def track_displacement(
         return speed_and_yaw_rate(0.0, 0.0, speed, limits)
     err = (math.atan2(dy, dx) - heading + math.pi) % (2.0 * math.pi) - math.pi
     v_des = dist / period
-    # slow down to turn; keep rolling when the request points behind (an aircraft turns, it cannot pivot)
-    if abs(err) < math.pi / 2:
-        v_des *= math.cos(err)
-    else:
-        v_des = min(v_des, limits.min_turn_speed)
+    # slow down to turn, but keep rolling at up to ``min_turn_speed``: an aircraft turns on the move, it cannot
+    # pivot, and a slow creep at full nose-wheel lock ploughs the nose tyre instead of turning
+    turning = min(v_des, limits.min_turn_speed)
+    v_des = max(v_des * math.cos(err), turning) if abs(err) < math.pi / 2 else turning
     return speed_and_yaw_rate(v_des, err / limits.heading_time, speed, limits)
 
 

@@ -329,6 +329,10 @@ class Navigate(composer.Task):
         self._agent_geom[[physics.bind(g).element_id for g in self._agent.mjcf_model.find_all("geom")]] = True
         self._target_id = physics.bind(self._target_body).element_id
         self._warning_ids = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
+        # the fused substeps (all but composer's last one), split for contact checks
+        n_fused = self._n_sub - 1
+        edges = np.linspace(0, n_fused, self.spec.episode.collision_checks + 1).round().astype(int)
+        self._chunks = [int(c) for c in np.diff(edges) if c > 0]
         self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
 
     # -- episode set-up --------------------------------------------------------------------------------------
@@ -604,12 +608,9 @@ class Navigate(composer.Task):
 
         # fused substeps, split for collision checks; composer runs the final one
         warn_before = int(np.sum(d.warning.number[self._warning_ids]))
-        n_fused = self._n_sub - 1
-        chunks = np.diff(np.linspace(0, n_fused, spec.episode.collision_checks + 1).round().astype(int))
         self._collided_with = None
-        for c in chunks:
-            if c > 0:
-                mujoco.mj_step(self._m, d, nstep=int(c))
+        for c in self._chunks:
+            mujoco.mj_step(self._m, d, nstep=c)
             self._check_contacts()
         self._diverged = int(np.sum(d.warning.number[self._warning_ids])) > warn_before
 
@@ -665,7 +666,7 @@ class Navigate(composer.Task):
         spec = self.spec
         st = self._read_state()
         lost = ~self._arena.on_surface(st["xy"][1:]) | (d.xpos[self._body_ids[1:], 2] < -1.0)
-        if lost.any():
+        if lost.any():  # rare: a crash pushed a mover off the surface
             self._rescue_movers(physics, np.flatnonzero(lost), st)
             st = self._read_state()
         self._state = st
