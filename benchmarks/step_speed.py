@@ -18,30 +18,13 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
+from common import machine  # noqa: E402
 
 import deck_sim  # noqa: E402
-
-
-def machine() -> str:
-    """CPU model, core count, Python and MuJoCo versions."""
-    cpu = platform.processor() or "unknown cpu"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return (
-        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, mujoco {mujoco.__version__}, "
-        f"{platform.system()} {platform.release()}"
-    )
 
 
 def bench_scene(name: str, steps: int, predictor: str, seed: int = 0) -> dict[str, float]:
@@ -99,14 +82,12 @@ def bench_scene(name: str, steps: int, predictor: str, seed: int = 0) -> dict[st
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", default="deck1,deck2,square")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--predictor", default="constant_velocity")
     args = parser.parse_args()
-    print(f"machine: {machine()}")
+    print(f"machine: {machine(mujoco=mujoco.__version__)}")
     print(
         f"predictor: {args.predictor}; medians over {args.steps} control steps; raw floor = mj_step(nstep=substeps) "
         "from the same states"

@@ -120,6 +120,7 @@ class MoverBehaviour:
         self.yielding = np.zeros(n, dtype=bool)
         self.agent_wait_since = np.full(n, np.nan)
         self.give_up = np.zeros(n, dtype=bool)
+        self.last_give_up = np.full(n, -np.inf)
         self.routes: list[np.ndarray] = [np.zeros((0, 2))] * n
         self.route_rest = [np.zeros(0)] * n  # remaining route length after each waypoint
         self.waypoint = np.zeros(n, dtype=int)
@@ -229,6 +230,8 @@ class MoverBehaviour:
         if events.any() or stuck.any():
             for i in np.flatnonzero(events | stuck):
                 if stuck[i] or (not driving[i] and t >= self.dwell_until[i]):
+                    if self.give_up[i]:
+                        self.last_give_up[i] = t
                     self._depart(i, positions[i], t)
                     self.agent_wait_since[i] = np.nan
                     self.give_up[i] = False
@@ -296,21 +299,27 @@ class MoverBehaviour:
         lateral = np.abs(rx * fy - ry * fx)
         beside = lateral < self._yield_width
         ahead = (along > 0.0) & (along < self._yield_reach) & beside
+        close = (along[:, :n] > 0.0) & (along[:, :n] < self._contact_reach) & beside[:, :n]
         movers = ahead[:, :n]
-        # in a stand-off (each ahead of the other) the lower index goes first
-        movers &= ~movers.T | self._lower
+        # head on (each ahead of the other, facing each other): both wait and the higher-numbered one turns away;
+        # in any other stand-off the lower index goes first
+        opposed = (fx * fx.T + fy * fy.T) < -0.5
+        head_on = movers & movers.T & opposed
+        movers &= ~movers.T | self._lower | head_on
         by_mover = movers.any(axis=1)
         # a mover that waited too long for another mover goes anyway, but never into one right at its nose
         self.yield_since[~by_mover] = np.nan
         self.yield_since[by_mover & np.isnan(self.yield_since)] = t
-        touching = ((along[:, :n] > 0.0) & (along[:, :n] < self._contact_reach) & beside[:, :n]).any(axis=1)
-        by_mover &= ((t - self.yield_since) <= p.max_yield_time) | touching
+        by_mover &= ((t - self.yield_since) <= p.max_yield_time) | close.any(axis=1)
         self.yielding = (by_mover | ahead[:, n]) & driving
         # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
         for_agent = ahead[:, n] & driving
         self.agent_wait_since[~for_agent] = np.nan
         self.agent_wait_since[for_agent & np.isnan(self.agent_wait_since)] = t
         self.give_up = for_agent & ((t - self.agent_wait_since) > p.max_yield_time)
+        # head on with another mover: the higher-numbered one heads for another spot (once per max_yield_time)
+        rested = ~(t - self.last_give_up < p.max_yield_time)
+        self.give_up |= (head_on & self._lower).any(axis=1) & driving & rested
         return self.yielding
 
     _STATE = (

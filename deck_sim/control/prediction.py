@@ -13,6 +13,7 @@ Implementations:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -61,15 +62,19 @@ def validate_tracks(tracks: ObstacleTracks, min_history: int) -> None:
         raise PredictionInputError(f"kinds must have shape ({pos.shape[0]},), got {np.shape(tracks.kinds)}")
 
 
+@functools.lru_cache(maxsize=32)
+def _slope_weights(k: int, dt: float) -> np.ndarray:
+    """Weights w (k,) with sum_i w_i p_i = least-squares slope of k samples dt apart (sum w = 0)."""
+    t = (np.arange(k) - (k - 1) / 2.0) * dt
+    return t / float(np.dot(t, t))
+
+
 def least_squares_velocity(positions: np.ndarray, dt: float, window: int) -> np.ndarray:
     """Velocity (n, 2) in m/s of a least-squares line through the last ``window`` samples of each track."""
     k = min(window, positions.shape[1])
     if k < 2:
         return np.zeros((positions.shape[0], 2))
-    t = (np.arange(k) - (k - 1) / 2.0) * dt
-    recent = positions[:, -k:, :]
-    centred = recent - recent.mean(axis=1, keepdims=True)
-    return np.einsum("k,nkd->nd", t, centred) / float(np.dot(t, t))
+    return np.tensordot(_slope_weights(k, float(dt)), positions[:, -k:, :], axes=([0], [1]))
 
 
 def constant_velocity_rollout(
