@@ -74,7 +74,7 @@ def least_squares_velocity(positions: np.ndarray, dt: float, window: int) -> np.
     k = min(window, positions.shape[1])
     if k < 2:
         return np.zeros((positions.shape[0], 2))
-    return np.tensordot(_slope_weights(k, float(dt)), positions[:, -k:, :], axes=([0], [1]))
+    return np.einsum("k,nkd->nd", _slope_weights(k, float(dt)), positions[:, -k:, :])
 
 
 def constant_velocity_rollout(

@@ -665,7 +665,8 @@ class Navigate(composer.Task):
         self._diverged = self._diverged or not np.all(np.isfinite(d.qpos))
         spec = self.spec
         st = self._read_state()
-        lost = ~self._arena.on_surface(st["xy"][1:]) | (d.xpos[self._body_ids[1:], 2] < -1.0)
+        on_surface = self._arena.on_surface(st["xy"])  # the agent, then every mover
+        lost = ~on_surface[1:] | (d.xpos[self._body_ids[1:], 2] < -1.0)
         if lost.any():  # rare: a crash pushed a mover off the surface
             self._rescue_movers(physics, np.flatnonzero(lost), st)
             st = self._read_state()
@@ -679,7 +680,7 @@ class Navigate(composer.Task):
         clear = self._obstacle_clearances(st)
         r = spec.reward
         self._reached = dist <= spec.agent.goal_radius and self._collided_with is None
-        self._off_surface = not bool(self._arena.on_surface(agent_xy))
+        self._off_surface = not bool(on_surface[0])
         failed = self._collided_with is not None or self._off_surface
         if self._diverged:
             self._reward = rewards.RewardTerms(0.0, 0.0, 0.0, 0.0, 0.0)
@@ -760,8 +761,7 @@ class Navigate(composer.Task):
         xmat = d.xmat[self._body_ids]
         yaw = np.arctan2(xmat[:, 3], xmat[:, 0])
         vel = d.qvel[self._vel_dofs]
-        heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
-        fwd = np.einsum("ij,ij->i", vel, heading)
+        fwd = vel[:, 0] * np.cos(yaw) + vel[:, 1] * np.sin(yaw)
         # pedestrians have no body heading: their speed is the norm of their velocity
         if self._is_ped.any():
             fwd[self._is_ped] = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
