@@ -97,3 +97,14 @@ def test_oracle_sees_the_true_future_without_disturbing_the_episode():
 def test_none_predictor_has_no_predicted_observation():
     env = deck_sim.load("deck1", seed=0, episode__predictor="none")
     assert "predicted" not in env.observation_spec()
+
+
+def test_the_control_library_imports_without_mujoco():
+    import subprocess
+    import sys
+
+    code = ("import sys; import deck_sim.control.prediction, deck_sim.control.planners, deck_sim.control.tracking, "
+            "deck_sim.control.mpc_predictor; "
+            "print(sorted(m for m in ('mujoco', 'dm_control') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
