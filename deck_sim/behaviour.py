@@ -2,8 +2,11 @@
 
 Each mover picks a special spot, plans the shortest route around the static obstacles to it, drives the route
 at a cruise speed drawn for this trip, brakes to a stop at the spot, dwells a random time, then picks another
-spot (never the one it is at) and leaves at a new random speed. Movers brake for whatever is close ahead of
-them (other movers, and the agent if ``yield_to_agent``); in a stand-off the lower-numbered mover goes first.
+spot (never the one it is at) and leaves at a new random speed. Movers brake for other movers close ahead of
+them and, as an emergency stop, for the agent (``yield_to_agent``). Rules that keep them from deadlocking or
+shoving: when two wait on each other the lower-numbered one goes first, unless they meet head on, when both wait
+and the higher-numbered one heads for another spot; a mover never drives into one right at its nose; one that
+waited on the agent longer than ``max_yield_time`` heads for another spot.
 
 The behaviour only *commands*: it returns desired velocities once per control step and the vehicles' actuators
 produce the motion, so accelerations and turn rates are physical. Randomness comes only from the generator
