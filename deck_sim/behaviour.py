@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from deck_sim.geometry import NoPathError, VisibilityGraph, polyline_length
+from deck_sim.geometry import NoPathError, VisibilityGraph
 
 DRIVING, DWELLING = 0, 1
 
@@ -354,7 +354,3 @@ class MoverBehaviour:
         for k in self._STATE:
             setattr(self, k, copy.deepcopy(state[k]))
         self._rng = copy.deepcopy(state["rng"])
-
-    def route_length(self, i: int) -> float:
-        """Metres left on mover i's current route (for diagnostics)."""
-        return polyline_length(self.routes[i][self.waypoint[i] :])

@@ -194,10 +194,6 @@ class VisibilityGraph:
             return np.zeros(0, dtype=bool)
         return (np.einsum("kni,i->kn", self._normals, point) < self._offsets).all(axis=1)
 
-    def is_free(self, points: np.ndarray) -> np.ndarray:
-        """Whether points (p, 2) are clear of every grown obstacle."""
-        return ~points_inside(np.atleast_2d(points), self._normals, self._offsets)
-
     def _neighbours(self, i: int) -> np.ndarray:
         """Indices of graph nodes visible from node i (cached)."""
         cached = self._visible.get(i)
@@ -233,12 +229,8 @@ class VisibilityGraph:
         if direct_ok:
             return np.stack([start, goal])
         n = len(self.nodes)
-        ok_start = ~self.blocked(np.repeat(start[None], n, 0), self.nodes, in_start) & self._leaving(
-            start, in_start
-        )
-        ok_goal = ~self.blocked(np.repeat(goal[None], n, 0), self.nodes, in_goal) & self._leaving(
-            goal, in_goal
-        )
+        ok_start = ~self.blocked(np.repeat(start[None], n, 0), self.nodes, in_start) & self._leaving(start, in_start)
+        ok_goal = ~self.blocked(np.repeat(goal[None], n, 0), self.nodes, in_goal) & self._leaving(goal, in_goal)
         from_start = np.flatnonzero(ok_start) if n else []
         to_goal = set(np.flatnonzero(ok_goal).tolist()) if n else set()
         if len(from_start) == 0 or not to_goal:

@@ -209,3 +209,15 @@ def test_movers_meeting_nose_to_nose_do_not_push_each_other():
     # waiting tractors that pivot towards a new aim twitch their centres by centimetres a step
     assert backwards < 3.0
     assert closest > 4.3  # 4 m of noses (two 2 m half-lengths) and never touching
+
+
+def test_controller_constants_are_read_from_the_compiled_models(envs):
+    task = envs["deck2"].task
+    physics = envs["deck2"].physics
+    limits = task.agent.physical_limits(physics)
+    assert limits["wheelbase"] == pytest.approx(5.4)  # nose axle at +4.8 m, main axle at -0.6 m
+    assert limits["max_thrust"] == 30000.0 and limits["brake_kv"] == 4000.0  # positive: the damper's gain is -kv
+    assert limits["wheel_radius"] == 0.45 and limits["max_steer"] == 1.2
+    assert limits["mass"] == pytest.approx(14830.0)
+    tractor = next(m for m in task.movers if type(m).__name__ == "Tractor")
+    assert tractor.drive_geometry(physics) == pytest.approx((1.6, 0.4))

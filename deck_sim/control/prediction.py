@@ -77,9 +77,7 @@ def least_squares_velocity(positions: np.ndarray, dt: float, window: int) -> np.
     return np.einsum("k,nkd->nd", _slope_weights(k, float(dt)), positions[:, -k:, :])
 
 
-def constant_velocity_rollout(
-    current: np.ndarray, velocity: np.ndarray, dt: float, horizon: int
-) -> np.ndarray:
+def constant_velocity_rollout(current: np.ndarray, velocity: np.ndarray, dt: float, horizon: int) -> np.ndarray:
     """Positions (n, horizon, 2) of obstacles moving from ``current`` at constant ``velocity``."""
     steps = np.arange(1, horizon + 1, dtype=np.float64) * dt
     return current[:, None, :] + steps[None, :, None] * velocity[:, None, :]
@@ -140,14 +138,10 @@ class Oracle:
         """Return ``tracks.future``; raise if the task did not provide it."""
         validate_tracks(tracks, min_history=1)
         if tracks.future is None:
-            raise PredictionInputError(
-                "the oracle predictor needs tracks.future, which the task did not fill"
-            )
+            raise PredictionInputError("the oracle predictor needs tracks.future, which the task did not fill")
         fut = np.asarray(tracks.future, dtype=np.float64)
         if fut.shape != (tracks.n, self.horizon, 2):
-            raise PredictionInputError(
-                f"tracks.future must have shape {(tracks.n, self.horizon, 2)}, got {fut.shape}"
-            )
+            raise PredictionInputError(f"tracks.future must have shape {(tracks.n, self.horizon, 2)}, got {fut.shape}")
         return Prediction(fut.copy(), np.zeros(tracks.n, dtype=bool))
 
 
@@ -167,9 +161,7 @@ def make_predictor(name: str, horizon: int, dt: float) -> Predictor:
     if name == "oracle":
         return Oracle(horizon=horizon)
     if name == "mpc":
-        try:
-            from deck_sim.control.mpc_predictor import MPCPredictor, MPCPredictorSettings
-        except ImportError as err:  # pragma: no cover - only until the MPC predictor lands
-            raise ValueError(f"predictor 'mpc' is not available: {err}") from err
+        from deck_sim.control.mpc_predictor import MPCPredictor, MPCPredictorSettings  # CasADi: import on use
+
         return MPCPredictor(MPCPredictorSettings(horizon=horizon, dt=dt))
     raise ValueError(f"unknown predictor {name!r}; expected one of {', '.join(PREDICTOR_NAMES)}")

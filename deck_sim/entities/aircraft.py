@@ -7,9 +7,6 @@ from dm_control.composer.observation import observable
 
 from deck_sim.entities._common import load_model, planar_footprint
 
-WHEELBASE = 5.4
-"""Metres between the nose-wheel axle and the main-gear axle (aircraft.xml)."""
-
 
 class Aircraft(composer.Entity):
     """A fighter-class aircraft that taxis on real wheel contacts (assets/aircraft.xml).
@@ -24,11 +21,6 @@ class Aircraft(composer.Entity):
         self._steer = self._mjcf_root.find("actuator", "nose_steer")
         self._thrust = self._mjcf_root.find("actuator", "thrust")
         self._brakes = [self._mjcf_root.find("actuator", n) for n in ("brake_left", "brake_right")]
-        self._collision_geoms = [
-            g
-            for g in self._mjcf_root.find_all("geom")
-            if g.dclass is not None and g.dclass.dclass == "collision"
-        ]
         center, half, radius = planar_footprint(self._mjcf_root)
         self.footprint = (center, half, radius)
 
@@ -49,15 +41,24 @@ class Aircraft(composer.Entity):
         """Steer, thrust, left brake, right brake (the order of ``command``'s columns)."""
         return (self._steer, self._thrust, *self._brakes)
 
-    @property
-    def collision_geoms(self) -> list[mjcf.Element]:
-        """Geoms whose contacts with obstacles count as collisions."""
-        return self._collision_geoms
+    def physical_limits(self, physics: mjcf.Physics) -> dict[str, float]:
+        """What a controller must know of this aircraft, read from the compiled model (SI units).
 
-    @property
-    def max_steer(self) -> float:
-        """Largest nose-wheel angle in radians."""
-        return float(self._steer.ctrlrange[1])
+        Keys: ``mass`` (kg, whole vehicle), ``wheelbase`` (m, nose axle to main axle), ``max_steer`` (rad),
+        ``max_thrust`` (N at command 1), ``brake_kv`` (N m s/rad of one main-wheel damper at command 1) and
+        ``wheel_radius`` (m, main wheels); the keyword names of ``control.tracking.AircraftLimits``.
+        """
+        model = physics.model
+        nose = physics.bind(self._mjcf_root.find("body", "nose_gear")).pos
+        main = physics.bind(self._mjcf_root.find("body", "main_left")).pos
+        return {
+            "mass": float(model.body_subtreemass[physics.bind(self._root_body).element_id]),
+            "wheelbase": float(nose[0] - main[0]),
+            "max_steer": float(physics.bind(self._steer).ctrlrange[1]),
+            "max_thrust": float(physics.bind(self._thrust).gear[0]),
+            "brake_kv": float(-physics.bind(self._brakes[0]).gainprm[2]),  # damper: gain = -kv * velocity
+            "wheel_radius": float(physics.bind(self._mjcf_root.find("geom", "main_left_wheel")).size[0]),
+        }
 
 
 class AircraftObservables(composer.Observables):

@@ -69,9 +69,7 @@ class _SiteArena(composer.Arena):
         except KeyError:
             prefix = name.split("_")[0]
             near = sorted(n for n in self.sites if n.startswith(prefix))
-            raise KeyError(
-                f"arena {self._mjcf_root.model!r} has no site {name!r}; sites like it: {near}"
-            ) from None
+            raise KeyError(f"arena {self._mjcf_root.model!r} has no site {name!r}; sites like it: {near}") from None
 
     def sites_with_prefix(self, prefix: str) -> list[Site2D]:
         """Sites whose names start with ``prefix``, sorted by name."""

@@ -46,11 +46,6 @@ class Pedestrian(composer.Entity):
         """Velocity servos along world x and y."""
         return self._servos
 
-    @property
-    def collision_geoms(self) -> list[mjcf.Element]:
-        """Geoms whose contacts with obstacles count as collisions."""
-        return [self._mjcf_root.find("geom", "body")]
-
 
 class PedestrianObservables(composer.Observables):
     """Position and velocity of the pedestrian."""

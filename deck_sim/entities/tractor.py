@@ -1,4 +1,4 @@
-"""The deck tractor: differential drive on two wheels and two frictionless casters."""
+"""The deck tractor: differential drive on two wheels and a frictionless caster."""
 
 from __future__ import annotations
 
@@ -6,11 +6,6 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 from deck_sim.entities._common import load_model, planar_footprint
-
-WHEEL_RADIUS = 0.4
-"""Metres (tractor.xml)."""
-TRACK = 1.6
-"""Metres between the driven wheels (tractor.xml)."""
 
 
 class Tractor(composer.Entity):
@@ -41,6 +36,14 @@ class Tractor(composer.Entity):
     def actuators(self) -> tuple[mjcf.Element, ...]:
         """Left and right wheel-speed servos."""
         return self._wheels
+
+    def drive_geometry(self, physics: mjcf.Physics) -> tuple[float, float]:
+        """(track, wheel radius) in metres, read from the compiled model: wheel speeds for a forward speed v
+        and turn rate w are (v -+ w track / 2) / radius."""
+        left = physics.bind(self._mjcf_root.find("body", "left_wheel")).pos
+        right = physics.bind(self._mjcf_root.find("body", "right_wheel")).pos
+        radius = physics.bind(self._mjcf_root.find("geom", "left_wheel")).size[0]
+        return float(left[1] - right[1]), float(radius)
 
 
 class TractorObservables(composer.Observables):

@@ -32,7 +32,6 @@ from deck_sim.behaviour import BehaviourParams, MoverBehaviour
 from deck_sim.control.prediction import Predictor, make_predictor
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.entities.tractor import TRACK, WHEEL_RADIUS
 from deck_sim.geometry import Footprints, VisibilityGraph
 from deck_sim.scenes import SceneSpec
 from deck_sim.tasks import rewards
@@ -97,9 +96,7 @@ class Navigate(composer.Task):
         # static obstacles, joint-less
         self._statics: list[StaticProp] = []
         for i in range(spec.static.slotted):
-            self._statics.append(
-                StaticProp(spec.static.slotted_kind, name=f"{spec.static.slotted_kind}_{i:02d}")
-            )
+            self._statics.append(StaticProp(spec.static.slotted_kind, name=f"{spec.static.slotted_kind}_{i:02d}"))
         for i in range(spec.static.scattered):
             self._statics.append(StaticProp("crowd_group", name=f"crowd_group_{i:02d}"))
         for prop in self._statics:
@@ -164,17 +161,12 @@ class Navigate(composer.Task):
         self._horizon = int(self._predictor.horizon)
         self._spot_xy = np.array([arena.site(s).xy for s in spec.movers.spots]).reshape(-1, 2)
         self._kinds = np.array(
-            [
-                ObstacleKind.PEDESTRIAN if isinstance(m, Pedestrian) else ObstacleKind.WHEELED
-                for m in self._movers
-            ],
+            [ObstacleKind.PEDESTRIAN if isinstance(m, Pedestrian) else ObstacleKind.WHEELED for m in self._movers],
             dtype=int,
         )
         self._mover_half = np.array([m.footprint[1] for m in self._movers]).reshape(-1, 2)
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
-        self._mover_spawn_radius = (
-            np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
-        )
+        self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
             [m.footprint[2] if isinstance(m, Pedestrian) else float(m.footprint[1][1]) for m in self._movers]
@@ -239,7 +231,6 @@ class Navigate(composer.Task):
         return self._n_sub
 
     def _build_observables(self) -> None:
-        spec = self.spec
         m = len(self._statics) + len(self._arena.fixed_obstacle_geoms)
         n = len(self._movers)
         shapes = {"target": (2,), "static_obstacles": (m, 2), "dynamic_obstacles": (n, 2)}
@@ -253,7 +244,6 @@ class Navigate(composer.Task):
             obs = observable.Generic(lambda physics, key=key: self._obs[key])
             obs.enabled = True
             self._task_observables[key] = obs
-        del spec
 
     @property
     def task_observables(self) -> dict[str, observable.Observable]:
@@ -299,16 +289,18 @@ class Navigate(composer.Task):
             groups[kind].append(i)
             ctrl[kind].append(np.array(physics.bind(list(mover.actuators)).element_id))
         self._mover_groups = {k: np.array(v, dtype=int) for k, v in groups.items()}
-        self._mover_ctrl = {
-            k: (np.array(v, dtype=int) if v else np.zeros((0, 2), dtype=int)) for k, v in ctrl.items()
-        }
+        self._mover_ctrl = {k: (np.array(v, dtype=int) if v else np.zeros((0, 2), dtype=int)) for k, v in ctrl.items()}
+        # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
-            root = physics.bind(self._agent.root_body)
-            self._aircraft_limits = AircraftLimits(mass=float(m.body_subtreemass[root.element_id]))
+            self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))
         taxiing = [mv for mv in self._movers if isinstance(mv, Aircraft)]
         if taxiing:
-            mass = float(m.body_subtreemass[physics.bind(taxiing[0].root_body).element_id])
-            self._mover_limits = AircraftLimits(mass=mass, max_speed=self.spec.movers.speed_range[1])
+            self._mover_limits = AircraftLimits(
+                **taxiing[0].physical_limits(physics), max_speed=self.spec.movers.speed_range[1]
+            )
+        tractors = [mv for mv in self._movers if isinstance(mv, Tractor)]
+        if tractors:
+            self._tractor_track, self._tractor_wheel_radius = tractors[0].drive_geometry(physics)
         # contact bookkeeping: which geoms are the agent's, which obstacle owns every other geom
         self._obstacle_names = [p.mjcf_model.model for p in self._statics]
         self._obstacle_names += [g.name for g in self._arena.fixed_obstacle_geoms]
@@ -364,12 +356,10 @@ class Navigate(composer.Task):
 
         # slotted statics: slots clear of the start and the target
         slots = arena.sites_with_prefix(spec.static.slot_prefix)
-        kind_fp = StaticProp(spec.static.slotted_kind).footprint if spec.static.slotted else None
+        kind_fp = self._statics[0].footprint if spec.static.slotted else None  # slotted props come first
         free = []
         for s in slots if kind_fp is not None else []:
-            fp = Footprints(
-                np.array([[s.x, s.y]]), kind_fp[1][None], np.array([s.yaw]), np.array([kind_fp[2]])
-            )
+            fp = Footprints(np.array([[s.x, s.y]]), kind_fp[1][None], np.array([s.yaw]), np.array([kind_fp[2]]))
             d_start = fp.distance(agent_xy)[0, 0]
             d_target = fp.distance(target_xy)[0, 0]
             if d_start > a.radius + 2.0 and d_target > a.radius + a.goal_radius:
@@ -512,9 +502,7 @@ class Navigate(composer.Task):
             [
                 Footprints(
                     layout.static_xy
-                    + _rotate(
-                        np.array([p.footprint[0] for p in self._statics]).reshape(-1, 2), layout.static_yaw
-                    ),
+                    + _rotate(np.array([p.footprint[0] for p in self._statics]).reshape(-1, 2), layout.static_yaw),
                     np.array([p.footprint[1] for p in self._statics]).reshape(-1, 2),
                     layout.static_yaw,
                     np.array([p.footprint[2] for p in self._statics]),
@@ -575,9 +563,7 @@ class Navigate(composer.Task):
         self._update_info(physics)
 
     # -- one control step ----------------------------------------------------------------------------------
-    def before_step(
-        self, physics: mjcf.Physics, action: np.ndarray, random_state: np.random.RandomState
-    ) -> None:
+    def before_step(self, physics: mjcf.Physics, action: np.ndarray, random_state: np.random.RandomState) -> None:
         """Check the action, set every actuator, and run all physics substeps but composer's last one."""
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (2,):
@@ -601,9 +587,7 @@ class Navigate(composer.Task):
             )
             d.ctrl[self._ctrl_agent] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
         else:
-            d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[
-                0
-            ]
+            d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
         self._command_movers(physics.data.time, st)
 
         # fused substeps, split for collision checks; composer runs the final one
@@ -629,9 +613,8 @@ class Navigate(composer.Task):
         g = self._mover_groups["tractor"]
         if len(g):
             v, w = cmd.speed[g], cmd.yaw_rate[g]
-            wheels = np.stack(
-                [(v - w * TRACK / 2) / WHEEL_RADIUS, (v + w * TRACK / 2) / WHEEL_RADIUS], axis=1
-            )
+            half_track, radius = self._tractor_track / 2, self._tractor_wheel_radius
+            wheels = np.stack([(v - w * half_track) / radius, (v + w * half_track) / radius], axis=1)
             d.ctrl[self._mover_ctrl["tractor"]] = wheels
         g = self._mover_groups["aircraft"]
         if len(g):
@@ -685,9 +668,7 @@ class Navigate(composer.Task):
         if self._diverged:
             self._reward = rewards.RewardTerms(0.0, 0.0, 0.0, 0.0, 0.0)
         else:
-            r1 = rewards.attraction(
-                self._dist_target, dist, r.attraction_min, r.attraction_max, r.progress_deadband
-            )
+            r1 = rewards.attraction(self._dist_target, dist, r.attraction_min, r.attraction_max, r.progress_deadband)
             r2 = rewards.repulsion(
                 self._clearances,
                 clear,
