@@ -54,6 +54,8 @@ class BehaviourParams:
     """1/s, turn rate commanded per radian of heading error (wheeled)."""
     stuck_time: float = 12.0
     """Seconds of standing still while driving (not yielding) after which the mover picks another spot."""
+    turn_speed: float = 1.0
+    """m/s: below this a vehicle yields only to what is ahead both along its heading and towards its aim."""
     max_yield_time: float = 4.0
     """Seconds a mover yields to another mover before it goes anyway (never into one at its nose), or waits for
     the agent before it heads for another spot instead (no deadlocks)."""
@@ -124,6 +126,8 @@ class MoverBehaviour:
         self.agent_wait_since = np.full(n, np.nan)
         self.give_up = np.zeros(n, dtype=bool)
         self.last_give_up = np.full(n, -np.inf)
+        self.give_up_locked = np.zeros(n, dtype=bool)
+        self.blocked_by = np.zeros((n, 2))  # direction to what blocks a gridlocked mover, metres
         self.routes: list[np.ndarray] = [np.zeros((0, 2))] * n
         self.route_rest = [np.zeros(0)] * n  # remaining route length after each waypoint
         self.waypoint = np.zeros(n, dtype=int)
@@ -153,12 +157,28 @@ class MoverBehaviour:
             self._depart(i, positions[i], t=0.0)
 
     # -- events (Python per mover, rare) ---------------------------------------------------------------
-    def _depart(self, i: int, position: np.ndarray, t: float) -> None:
-        """Mover i picks a new spot and speed and plans its route there."""
+    def _depart(self, i: int, position: np.ndarray, t: float, away_from: np.ndarray | None = None) -> None:
+        """Mover i picks a new spot and speed and plans its route there.
+
+        Args:
+            away_from: (2,) direction (from the mover) of something blocking it: if given, only spots whose
+                direction leads more than 60 degrees away from it are chosen (any spot if none does).
+        """
         k = len(self.spots)
         choices = [s for s in range(k) if s != self.spot[i] and s != self.last_spot[i]] or [
             s for s in range(k) if s != self.spot[i]
         ]
+        if away_from is not None:
+            # the first leg of the route must lead more than 60 degrees away from the blocker
+            away = []
+            for s in choices:
+                try:
+                    leg = self.graphs[i].shortest_path(position, self.spots[s])[1] - position
+                except NoPathError:
+                    continue
+                if leg @ away_from < 0.5 * np.linalg.norm(leg) * np.linalg.norm(away_from):
+                    away.append(s)
+            choices = away or choices
         self.last_spot[i] = self.spot[i]
         self.spot[i] = int(self._rng.choice(choices))
         lo, hi = self.params.speed_range
@@ -235,7 +255,8 @@ class MoverBehaviour:
                 if stuck[i] or (not driving[i] and t >= self.dwell_until[i]):
                     if self.give_up[i]:
                         self.last_give_up[i] = t
-                    self._depart(i, positions[i], t)
+                    away = self.blocked_by[i] if self.give_up_locked[i] else None
+                    self._depart(i, positions[i], t, away_from=away)
                     self.agent_wait_since[i] = np.nan
                     self.give_up[i] = False
                 elif not last_wp[i]:
@@ -252,7 +273,7 @@ class MoverBehaviour:
         remaining = dist_aim + self.rest_after_aim
         v_stop = np.sqrt(2.0 * p.decel * np.maximum(remaining - speeds * (0.5 * dt) - 0.3, 0.0))
         v_des = np.minimum(self.cruise, v_stop) * driving
-        v_des[self._must_yield(t, positions, headings, to_aim, dist_aim, driving, agent_xy)] = 0.0
+        v_des[self._must_yield(t, positions, headings, speeds, to_aim, dist_aim, driving, agent_xy)] = 0.0
         err = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
         # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
         align = np.maximum(np.cos(err), 0.0)
@@ -275,12 +296,18 @@ class MoverBehaviour:
         t: float,
         positions: np.ndarray,
         headings: np.ndarray,
+        speeds: np.ndarray,
         to_aim: np.ndarray,
         dist_aim: np.ndarray,
         driving: np.ndarray,
         agent_xy: np.ndarray,
     ) -> np.ndarray:
-        """(n,) whether each driving mover has something close ahead that it must stop for."""
+        """(n,) whether each driving mover has something close ahead that it must stop for.
+
+        Ahead means along the mover's heading; a vehicle slower than ``turn_speed`` (starting, or turning
+        towards a new aim) only counts what is also ahead in the direction of its aim, so it can turn away
+        from what blocks it; something right at its nose always counts.
+        """
         p = self.params
         n = len(self.radii)
         if p.yield_distance <= 0:
@@ -303,6 +330,16 @@ class MoverBehaviour:
         beside = lateral < self._yield_width
         ahead = (along > 0.0) & (along < self._yield_reach) & beside
         close = (along[:, :n] > 0.0) & (along[:, :n] < self._contact_reach) & beside[:, :n]
+        slow = (speeds < p.turn_speed) & (dist_aim > 1e-6)
+        if slow.any():
+            ax = (to_aim[:, 0] / np.maximum(dist_aim, 1e-6))[:, None]
+            ay = (to_aim[:, 1] / np.maximum(dist_aim, 1e-6))[:, None]
+            along_aim = rx * ax + ry * ay
+            towards = (
+                (along_aim > 0.0) & (along_aim < self._yield_reach) & (np.abs(rx * ay - ry * ax) < self._yield_width)
+            )
+            ahead &= ~slow[:, None] | towards
+            ahead[:, :n] |= close
         movers = ahead[:, :n]
         # head on (each ahead of the other, facing each other): both wait and the higher-numbered one turns away;
         # in any other stand-off the lower index goes first
@@ -313,16 +350,27 @@ class MoverBehaviour:
         # a mover that waited too long for another mover goes anyway, but never into one right at its nose
         self.yield_since[~by_mover] = np.nan
         self.yield_since[by_mover & np.isnan(self.yield_since)] = t
-        by_mover &= ((t - self.yield_since) <= p.max_yield_time) | close.any(axis=1)
+        at_nose = close.any(axis=1)
+        waited = t - self.yield_since
+        by_mover &= (waited <= p.max_yield_time) | at_nose
         self.yielding = (by_mover | ahead[:, n]) & driving
+        # gridlock: one at its nose for longer than ``stuck_time`` -> head for a spot away from it (once per
+        # ``max_yield_time``); a wheeled mover turns on the spot towards it and the one at its nose drops out of view
+        rested = ~(t - self.last_give_up < p.max_yield_time)
+        locked = by_mover & at_nose & (waited > p.stuck_time) & driving & rested
+        if locked.any():
+            for i in np.flatnonzero(locked):
+                j = np.flatnonzero(close[i])
+                k = j[np.argmin(along[i, j])]
+                self.blocked_by[i] = others[k] - positions[i]
+        self.give_up_locked = locked
         # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
         for_agent = ahead[:, n] & driving
         self.agent_wait_since[~for_agent] = np.nan
         self.agent_wait_since[for_agent & np.isnan(self.agent_wait_since)] = t
         self.give_up = for_agent & ((t - self.agent_wait_since) > p.max_yield_time)
         # head on with another mover: the higher-numbered one heads for another spot (once per max_yield_time)
-        rested = ~(t - self.last_give_up < p.max_yield_time)
-        self.give_up |= (head_on & self._lower).any(axis=1) & driving & rested
+        self.give_up |= ((head_on & self._lower).any(axis=1) & driving & rested) | locked
         return self.yielding
 
     _STATE = (
@@ -335,6 +383,11 @@ class MoverBehaviour:
         "still_since",
         "yield_since",
         "yielding",
+        "agent_wait_since",
+        "give_up",
+        "last_give_up",
+        "give_up_locked",
+        "blocked_by",
         "routes",
         "route_rest",
         "route_last",

@@ -94,6 +94,27 @@ def test_oracle_sees_the_true_future_without_disturbing_the_episode():
             np.testing.assert_allclose(predicted[k][:, j - 1], truth[k + j], atol=1e-9)
 
 
+@pytest.mark.parametrize("seed", [0, 5])
+def test_the_episode_does_not_depend_on_the_predictor(seed):
+    # movers that yield to the agent keep timers (how long they waited on it, when they last gave up); simulating
+    # ahead must leave those as it found them, or the oracle would change the episode it predicts
+    from deck_sim.policies import ScriptedPolicy
+
+    oracle = deck_sim.load("deck2", seed=seed, episode__predictor="oracle")
+    plain = deck_sim.load("deck2", seed=seed, episode__predictor="none")
+    policy = ScriptedPolicy(oracle)
+    ts = oracle.reset()
+    plain.reset()
+    policy.reset()
+    for _ in range(40):
+        action = policy.act(ts.observation)
+        ts = oracle.step(action)
+        plain.step(action)
+        np.testing.assert_array_equal(oracle.task.last_info["mover_positions"], plain.task.last_info["mover_positions"])
+        if ts.last():
+            break
+
+
 def test_none_predictor_has_no_predicted_observation():
     env = deck_sim.load("deck1", seed=0, episode__predictor="none")
     assert "predicted" not in env.observation_spec()
