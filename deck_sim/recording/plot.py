@@ -89,19 +89,8 @@ def plot_episode(
         outline = footprint_outline(st.centers[i], st.half[i], st.yaw[i], st.radius[i])
         ax.add_patch(_polygon(outline, "#5f6368", "#3c4043", 0.6, zorder=1))
 
-    goal = np.linspace(0, 2 * np.pi, 60)
-    tx, ty = scene.target_xy
-    ax.fill(
-        tx + scene.goal_radius * np.cos(goal),
-        ty + scene.goal_radius * np.sin(goal),
-        color="#34a853",
-        alpha=0.6,
-        zorder=2,
-        label="target",
-    )
-
     movers = np.stack([s.mover_poses for s in steps])  # (T, n, 7)
-    colors = ["#f9ab00", "#e37400", "#a142f4", "#12b5cb", "#795548", "#ff63b8", "#9aa0a6", "#1e8e3e", "#b31412"]
+    colors = ["#f9ab00", "#e37400", "#a142f4", "#12b5cb", "#795548", "#ff63b8", "#9aa0a6", "#9e9d24", "#3949ab"]
     yaw_end = quaternion_yaw(movers[-1, :, 3:7])
     for i, name in enumerate(scene.mover_names):
         c = colors[i % len(colors)]
@@ -144,6 +133,18 @@ def plot_episode(
     rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
     outline = footprint_outline(end.agent_xy + rot @ afp.centers[0], afp.half[0], float(yaw), afp.radius[0])
     ax.add_patch(_polygon(outline, "#d93025", "#d93025", 0.5, zorder=5))
+
+    goal = np.linspace(0, 2 * np.pi, 60)
+    tx, ty = scene.target_xy
+    ax.fill(
+        tx + scene.goal_radius * np.cos(goal),
+        ty + scene.goal_radius * np.sin(goal),
+        facecolor="#34a853",
+        edgecolor="#0d652d",
+        alpha=0.7,
+        zorder=7,
+        label="target",
+    )
 
     outcome = episode.outcome or "incomplete"
     ax.set_title(
