@@ -42,6 +42,29 @@ def turning_angle(xy: np.ndarray, min_segment: float = 0.05) -> float:
     return float(np.sum(np.abs(change)))
 
 
+def prediction_errors(predicted: np.ndarray, actual: np.ndarray) -> tuple[float, float, int]:
+    """Average and final displacement errors (ADE, FDE; metres) of an episode's mover predictions.
+
+    Args:
+        predicted: (T, n, N, 2) at every step t, the predicted positions of the n movers at steps t+1 ... t+N.
+        actual: (T, n, 2) the movers' positions at every step.
+
+    Returns:
+        (ADE, FDE, samples): ADE averages the error over every predicted step, FDE the error at step N, both over
+        every mover and every step t whose horizon ends within the episode (t + N <= T - 1); ``samples`` counts
+        the (step, mover) pairs scored. ADE and FDE are NaN when none is.
+    """
+    predicted = np.asarray(predicted, dtype=np.float64)
+    actual = np.asarray(actual, dtype=np.float64)
+    steps, n, horizon = predicted.shape[0], predicted.shape[1], predicted.shape[2]
+    scored = steps - horizon
+    if horizon == 0 or n == 0 or scored <= 0:
+        return float("nan"), float("nan"), 0
+    truth = np.stack([actual[t + 1 : t + horizon + 1] for t in range(scored)]).transpose(0, 2, 1, 3)
+    err = np.hypot(*(predicted[:scored] - truth).transpose(3, 0, 1, 2))  # (scored, n, N)
+    return float(err.mean()), float(err[..., -1].mean()), scored * n
+
+
 @dataclass(frozen=True)
 class EpisodeResult:
     """What one episode came to. Lengths in metres, times in seconds, angles in degrees."""

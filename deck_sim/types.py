@@ -116,3 +116,101 @@ class PlannerView:
     """Metres per unit action."""
     period: float
     """Seconds per decision."""
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    """What stays fixed during one episode, as an episode log records it (``deck_sim.recording``).
+
+    Positions in metres (world frame), angles in radians. Obstacle footprints follow ``Footprints``: rounded
+    rectangles of half-extents ``half`` grown by ``radius``.
+
+    Attributes:
+        scene: Scene name (``SceneSpec.name``).
+        episode: Index of the episode in its run.
+        dt: Seconds between control steps.
+        bounds: ((xmin, ymin), (xmax, ymax)) of the surface; leaving it ends an episode.
+        target_xy: (2,) the target.
+        goal_radius: The episode succeeds within this distance of the target.
+        agent_radius: Radius of the disc that stands for the agent in clearances and rewards.
+        agent_footprint: The agent's own footprint in its body frame: (1,) row of centre offset, half, radius.
+        static_names: Name of every static obstacle, the arena's own (the island) last.
+        statics: Footprints of the static obstacles, in ``static_names`` order.
+        static_poses: (m, 3) x, y, yaw of every static obstacle's body (for props: the pose that places them).
+        mover_names: Name of every mover (its frame in the log).
+        movers: Footprints of the movers in their body frames (centres are offsets from the body, yaw 0).
+    """
+
+    scene: str
+    episode: int
+    dt: float
+    bounds: np.ndarray
+    target_xy: np.ndarray
+    goal_radius: float
+    agent_radius: float
+    agent_footprint: Footprints
+    static_names: tuple[str, ...]
+    statics: Footprints
+    static_poses: np.ndarray
+    mover_names: tuple[str, ...]
+    movers: Footprints
+
+
+@dataclass(frozen=True)
+class StepFrame:
+    """The state of one control step, as an episode log records it (``deck_sim.recording``).
+
+    Step 0 is the state right after the reset (no action, no reward). Positions in metres (float64, exactly as
+    the task computed them), angles in radians, speeds in m/s, times in seconds since the episode's start.
+
+    Attributes:
+        episode: Index of the episode in its run.
+        step: Control steps since the reset.
+        time: Simulated time, s.
+        action: (2,) the action that led to this step, in [-1, 1]^2; ``None`` at step 0.
+        agent_pose: (7,) the agent's body: x, y, z, then the orientation quaternion w, x, y, z.
+        heading: The agent's yaw.
+        speed: The agent's forward speed.
+        mover_poses: (n, 7) every mover's body pose, same layout as ``agent_pose``.
+        prediction: (n, N, 2) the predictor's positions of every mover at dt, 2 dt, ... N dt from now.
+        reward_terms: r1, r2, r3, r4 and their weighted sum ``total`` (paper eq. 10-16) of this step.
+        distance_to_goal: Distance from the agent to the target.
+        min_clearance: Clearance from the agent's disc to the nearest obstacle.
+        predictor_fallbacks: Movers whose prediction fell back to constant velocity at this step.
+        collision: Name of the obstacle the agent touched at this step, if any.
+        reached_goal: The agent reached the target.
+        left_surface: The agent left the surface.
+        diverged: The physics diverged.
+        last: The episode ended at this step.
+        discount: The environment's discount (0 on termination, 1 otherwise; ``None`` at step 0).
+    """
+
+    episode: int
+    step: int
+    time: float
+    action: np.ndarray | None
+    agent_pose: np.ndarray
+    heading: float
+    speed: float
+    mover_poses: np.ndarray
+    prediction: np.ndarray
+    reward_terms: dict[str, float]
+    distance_to_goal: float
+    min_clearance: float
+    predictor_fallbacks: int
+    collision: str | None
+    reached_goal: bool
+    left_surface: bool
+    diverged: bool
+    last: bool
+    discount: float | None
+
+    @property
+    def agent_xy(self) -> np.ndarray:
+        """(2,) the agent's position."""
+        return self.agent_pose[:2]
+
+    @property
+    def mover_xy(self) -> np.ndarray:
+        """(n, 2) the movers' positions."""
+        return self.mover_poses[:, :2]

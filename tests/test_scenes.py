@@ -139,3 +139,13 @@ def test_non_positive_reach_is_rejected(value):
     data["agent"]["reach"] = value
     with pytest.raises(SceneSpecError, match=r"\[agent\]\.reach"):
         parse_scene(data)
+
+
+def test_dump_scene_reads_back_equal_with_overrides():
+    from deck_sim.scenes import dump_scene
+
+    specs = [load_scene(name) for name in scene_names()]
+    specs += [load_scene(name, episode__predictor="oracle", reward__goal=123.25) for name in scene_names()]
+    specs.append(load_scene("deck1", movers__tractors=2))  # counts changed: no paper_counts any more
+    for spec in specs:
+        assert parse_scene(tomllib.loads(dump_scene(spec)), "dumped") == spec

@@ -4,6 +4,9 @@ deck-sim scenes                                     list the scenes
 deck-sim run --scene deck1 --policy scripted --episodes 20
                                                     play episodes, print and save the metrics
 deck-sim render --scene deck2 --out ep.mp4          a short video (offscreen) and a top-down PNG
+deck-sim log info runs/deck1-scripted-seed0/episodes.mcap
+                                                    an episode log: episodes, outcomes, topics (also: log plot,
+                                                    log video, log export --csv, log recover)
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ os.environ.setdefault(
 )  # offscreen rendering on a headless machine; set before mujoco loads
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import csv  # noqa: E402
 import json  # noqa: E402
 import logging  # noqa: E402
@@ -80,11 +84,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
+    out = Path(args.out) if args.out else Path("runs") / f"{args.scene}-{args.policy}-seed{args.seed}"
+    recorder = _open_run_recorder(args, env, out)
     results = []
     t0 = time.perf_counter()
-    with tqdm(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet) as bar:
+    bar = tqdm(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
+    with bar, recorder or contextlib.nullcontext():  # the log is finished even if a run fails
         for k in bar:
-            r = run_episode(env, policy, episode=k)
+            r = run_episode(env, policy, episode=k, recorder=recorder)
             results.append(r)
             wins = sum(x.outcome == "goal" for x in results)
             bar.set_postfix(success=f"{100 * wins / len(results):.0f}%", last=r.outcome)
@@ -92,7 +99,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     summary = summarize(results)
     table = _format_summary(args.scene, args.policy, predictor, summary, wall)
     print(table)
-    out = Path(args.out) if args.out else Path("runs") / f"{args.scene}-{args.policy}-seed{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "episodes.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(results[0].as_dict()))
@@ -111,6 +117,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(meta, indent=2))
     (out / "results.md").write_text(table + "\n")
     print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'}")
+    if recorder is not None:
+        print(f"wrote {recorder.path} (episode log: deck-sim log info {recorder.path})")
     return 0
 
 
@@ -148,6 +156,218 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- episode logs (MCAP): `run --record` and `deck-sim log ...` ------------------------------------------------
+def _add_record_arguments(p: argparse.ArgumentParser) -> None:
+    """``--record FILE`` / ``--no-record`` of ``deck-sim run``."""
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="FILE.mcap",
+        help="write every episode to this MCAP episode log (default: episodes.mcap in the run's folder)",
+    )
+    p.add_argument("--no-record", action="store_true", help="write no episode log")
+
+
+def _open_run_recorder(args: argparse.Namespace, env, out: Path):  # noqa: ANN001, ANN202 - lazy imports
+    """The recorder of ``deck-sim run`` (``None`` with ``--no-record``), replacing an earlier log of the run."""
+    if args.no_record:
+        return None
+    from deck_sim.rollout import open_recorder
+
+    path = Path(args.record) if args.record else out / "episodes.mcap"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    config = {k: getattr(args, k) for k in ("command", "scene", "policy", "episodes", "seed", "predictor")}
+    return open_recorder(path, env, seed=args.seed, policy=args.policy, config=config, overwrite=True)
+
+
+def _fmt(x: float, spec: str) -> str:
+    return "-" if x != x else format(x, spec)  # NaN: no value
+
+
+def _cmd_log_info(args: argparse.Namespace) -> int:
+    from deck_sim.recording import EpisodeLog
+
+    log = EpisodeLog(args.file)
+    m = log.metadata
+    size = log.path.stat().st_size
+    complete = [ep for ep in log.episodes if ep.complete]
+    print(f"file      {log.path} ({size / 1024:.1f} KiB, {log.library})")
+    print(
+        f"run       scene {m.get('scene')}, seed {m.get('seed')}, policy {m.get('policy')}, "
+        f"predictor {m.get('predictor')}, checkpoint {m.get('checkpoint') or '-'}"
+    )
+    print(
+        f"software  deck_sim {m.get('deck_sim_version')}, mujoco {m.get('mujoco_version')}, git {m.get('git_commit')}"
+    )
+    print(
+        f"episodes  {len(log.episodes)} ({len(complete)} complete), {log.duration:.1f} s simulated; "
+        f"attachments: {', '.join(sorted(log.attachments)) or '-'}"
+    )
+    print("topics")
+    for t in sorted(log.topics.values(), key=lambda t: t.topic):
+        print(f"  {t.topic:14s} {t.schema_name:26s} {t.message_encoding:9s} {t.count:7d} messages")
+    head = (
+        f"{'episode':>7s}  {'outcome':11s} {'steps':>5s} {'time s':>7s} {'path m':>7s} {'turn deg':>8s} "
+        f"{'clear m':>7s} {'return':>8s} {'ADE m':>6s} {'FDE m':>6s}  collision"
+    )
+    print(head)
+    for ep in log.episodes:
+        if not ep.complete:
+            print(f"{ep.index:7d}  {'incomplete':11s} {len(ep.steps) - 1:5d} {ep.duration:7.1f}  (the log stops here)")
+            continue
+        s = ep.rescore()
+        r = s.result
+        print(
+            f"{r.episode:7d}  {r.outcome:11s} {r.steps:5d} {r.sim_time:7.1f} {r.path_length:7.1f} "
+            f"{r.turning_angle_deg:8.1f} {r.min_clearance:7.2f} {r.reward:8.2f} {_fmt(s.ade, '6.2f'):>6s} "
+            f"{_fmt(s.fde, '6.2f'):>6s}  {r.collision_partner or '-'}"
+        )
+    return 0
+
+
+def _parse_steps(text: str | None) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"--steps: expected comma-separated step numbers, got {text!r}") from None
+
+
+def _log_episode(log, index: int | None):  # noqa: ANN001, ANN202 - lazy imports
+    if index is not None:
+        return log.episode(index)
+    if not log.episodes:
+        raise ValueError(f"{log.path}: the log holds no episode")
+    return log.episodes[0]
+
+
+def _cmd_log_plot(args: argparse.Namespace) -> int:
+    from deck_sim.recording import EpisodeLog
+    from deck_sim.recording.plot import plot_episode
+
+    log = EpisodeLog(args.file)
+    ep = _log_episode(log, args.episode)
+    out = Path(args.out) if args.out else log.path.with_name(f"{log.path.stem}-episode{ep.index}.png")
+    plot_episode(ep, out, prediction_steps=_parse_steps(args.steps), width_inches=args.width)
+    print(f"wrote {out} (episode {ep.index}, {ep.outcome or 'incomplete'})")
+    return 0
+
+
+def _cmd_log_video(args: argparse.Namespace) -> int:
+    from deck_sim.recording import EpisodeLog
+    from deck_sim.replay import render_episode, replay_environment
+
+    log = EpisodeLog(args.file)
+    ep = _log_episode(log, args.episode)
+    out = Path(args.out) if args.out else log.path.with_name(f"{log.path.stem}-episode{ep.index}.mp4")
+    env = replay_environment(log)
+    path, frames, fps = render_episode(
+        ep, env, out, width=args.width, camera=args.camera, speedup=args.speedup, max_steps=args.max_steps
+    )
+    print(f"wrote {path} ({frames} frames at {fps:g} fps, camera {args.camera}, episode {ep.index})")
+    return 0
+
+
+def _cmd_log_export(args: argparse.Namespace) -> int:
+    from deck_sim.recording import EpisodeLog
+
+    if not args.csv:
+        raise ValueError("log export: choose a format (--csv)")
+    log = EpisodeLog(args.file)
+    folder = Path(args.out) if args.out else log.path.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = log.path.stem
+    steps_path, episodes_path, events_path = (folder / f"{stem}_{k}.csv" for k in ("steps", "episodes", "events"))
+    mover_names = log.episodes[0].scene.mover_names if log.episodes else ()
+    step_fields = [
+        "episode", "step", "time", "x", "y", "heading", "speed", "action_x", "action_y", "r1", "r2", "r3", "r4",
+        "total", "distance_to_goal", "min_clearance", "predictor_fallbacks", "collision", "reached_goal",
+        "left_surface", "diverged", "last", "discount",
+    ]  # fmt: skip
+    step_fields += [f"{name}_{c}" for name in mover_names for c in ("x", "y")]
+    rows = 0
+    with open(steps_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(step_fields)
+        for s in log.steps():
+            a = (None, None) if s.action is None else (float(s.action[0]), float(s.action[1]))
+            t = s.reward_terms
+            row = [
+                s.episode, s.step, s.time, float(s.agent_xy[0]), float(s.agent_xy[1]), s.heading, s.speed, *a,
+                t["r1"], t["r2"], t["r3"], t["r4"], t["total"], s.distance_to_goal, s.min_clearance,
+                s.predictor_fallbacks, s.collision or "", s.reached_goal, s.left_surface, s.diverged, s.last,
+                s.discount,
+            ]  # fmt: skip
+            w.writerow(row + [float(v) for v in s.mover_xy.reshape(-1)])
+            rows += 1
+    scored = [(ep.rescore(), ep) for ep in log.episodes if ep.complete]
+    with open(episodes_path, "w", newline="") as f:
+        fields = [*(scored[0][0].result.as_dict() if scored else {}), "ade", "fde", "prediction_samples"]
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        for s, _ in scored:
+            w.writerow({**s.result.as_dict(), "ade": s.ade, "fde": s.fde, "prediction_samples": s.prediction_samples})
+    with open(events_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["episode", "log_time_ns", "kind", "level", "message"])
+        for e in log.events():
+            w.writerow([e.episode, e.time_ns, e.kind, e.level, e.message])
+    print(f"wrote {steps_path} ({rows} steps), {episodes_path} ({len(scored)} complete episodes), {events_path}")
+    return 0
+
+
+def _cmd_log_recover(args: argparse.Namespace) -> int:
+    from deck_sim.recording import recover
+
+    rec = recover(args.file, args.out)
+    state = f"truncated at {rec.stopped_at}" if rec.was_truncated else "whole (nothing was lost)"
+    print(
+        f"wrote {rec.path}: {rec.messages} messages, {rec.episodes_complete} complete episode(s), "
+        f"{rec.episodes_incomplete} incomplete; the source was {state}"
+    )
+    return 0
+
+
+def _register_log_commands(sub: argparse._SubParsersAction) -> None:
+    """``deck-sim log info|plot|video|export|recover FILE``."""
+    log = sub.add_parser("log", help="read an episode log (MCAP): info, plot, video, export, recover")
+    log_sub = log.add_subparsers(dest="log_command", required=True)
+
+    p = log_sub.add_parser("info", help="episodes, outcomes, re-scored metrics, topics and message counts")
+    p.add_argument("file")
+    p.set_defaults(func=_cmd_log_info)
+
+    p = log_sub.add_parser("plot", help="a top-down PNG of an episode: paths, obstacles, predictions")
+    p.add_argument("file")
+    p.add_argument("--episode", type=int, default=None, help="episode index (default: the first)")
+    p.add_argument("--out", default=None, help="PNG path (default: beside the log)")
+    p.add_argument("--steps", default=None, help="comma-separated steps whose predictions to draw (default: 4)")
+    p.add_argument("--width", type=float, default=16.0, help="figure width in inches (default 16)")
+    p.set_defaults(func=_cmd_log_plot)
+
+    p = log_sub.add_parser("video", help="an MP4 replay of an episode rendered with MuJoCo (MUJOCO_GL=egl)")
+    p.add_argument("file")
+    p.add_argument("--episode", type=int, default=None, help="episode index (default: the first)")
+    p.add_argument("--out", default=None, help="MP4 path (default: beside the log)")
+    p.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
+    p.add_argument("--camera", default="top", help="top (default), follow or agent/chase")
+    p.add_argument("--speedup", type=float, default=4.0, help="playback speed over simulated time (default 4)")
+    p.add_argument("--max-steps", type=int, default=None, help="render at most this many steps")
+    p.set_defaults(func=_cmd_log_video)
+
+    p = log_sub.add_parser("export", help="steps, episodes (re-scored) and events as CSV files")
+    p.add_argument("file")
+    p.add_argument("--csv", action="store_true", help="write CSV (the one format so far)")
+    p.add_argument("--out", default=None, help="folder for the CSV files (default: beside the log)")
+    p.set_defaults(func=_cmd_log_export)
+
+    p = log_sub.add_parser("recover", help="turn a truncated log (writer killed) into a valid one")
+    p.add_argument("file")
+    p.add_argument("--out", default=None, help="output path (default: <name>.recovered.mcap beside it)")
+    p.set_defaults(func=_cmd_log_recover)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``deck-sim``."""
     parser = argparse.ArgumentParser(
@@ -172,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="folder for results.md, summary.json, episodes.csv")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
+    _add_record_arguments(p)
 
     p = sub.add_parser("render", help="write a short MP4 (offscreen, MUJOCO_GL=egl) and a top-down PNG")
     p.add_argument("--scene", default="deck1")
@@ -185,6 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--top-height", type=int, default=400, help="height of the top-down PNG in pixels")
     p.add_argument("--speedup", type=float, default=2.0, help="video playback speed over real time")
     p.set_defaults(func=_cmd_render)
+
+    _register_log_commands(sub)
     return parser
 
 

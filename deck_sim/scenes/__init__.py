@@ -8,6 +8,7 @@ raises ``SceneSpecError`` naming the file, the field and the offending value.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import types
 import typing
@@ -383,3 +384,33 @@ _COUNT_FIELDS = {
     "movers__aircraft",
     "movers__pedestrians",
 }
+
+
+def _toml_value(value: Any) -> str:
+    """One field value as TOML (the types a scene spec holds: bool, int, float, str and tuples of them)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)  # repr round-trips a float exactly
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise SceneSpecError(f"cannot write {value!r} of type {type(value).__name__} as TOML")
+
+
+def dump_scene(spec: SceneSpec) -> str:
+    """The scene as TOML text that ``parse_scene`` reads back into an equal spec (overrides included).
+
+    This is what a run stores beside its results (for example in an episode log) to replay the scene exactly.
+    """
+    lines = [f"# scene {spec.name}, written by deck_sim.scenes.dump_scene"]
+    for f in dataclasses.fields(SceneSpec):
+        if f.name not in _SECTIONS:
+            lines.append(f"{f.name} = {_toml_value(getattr(spec, f.name))}")
+    for key in _SECTIONS:
+        lines.append(f"\n[{key}]")
+        section = getattr(spec, key)
+        for f in dataclasses.fields(section):
+            lines.append(f"{f.name} = {_toml_value(getattr(section, f.name))}")
+    return "\n".join(lines) + "\n"

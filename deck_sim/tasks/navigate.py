@@ -226,6 +226,15 @@ class Navigate(composer.Task):
         return self._predictor
 
     @property
+    def obstacle_names(self) -> list[str]:
+        """Names of the obstacles: the static ones (the arena's own, e.g. the island, last), then the movers.
+
+        The order of ``planner_view().statics`` followed by ``planner_view().movers``; a collision partner in
+        ``last_info["collision"]`` is one of these names. Available once the model is compiled.
+        """
+        return list(self._obstacle_names)
+
+    @property
     def n_substeps(self) -> int:
         """Physics steps per control step."""
         return self._n_sub

@@ -1,0 +1,548 @@
+"""``EpisodeLog``: read an episode log back (steps, episodes, events), re-score it offline, and ``recover`` a log
+whose writer was killed.
+
+Built on the ``mcap`` package: one sequential pass over the file's records (``mcap.stream_reader.StreamReader``)
+collects schemas, channels, messages, metadata and attachments; protobuf messages are decoded with the schemas
+stored in the file (``mcap_protobuf.decoder.DecoderFactory``), so reading needs no Foxglove package. Every
+failure of the file itself (missing, empty, not MCAP, truncated, corrupt, not a deck_sim log) raises ``LogError``
+naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import os
+import struct
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zstandard
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
+from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.decoder import DecoderFactory
+
+from deck_sim.metrics import EpisodeResult, outcome_of, path_length, prediction_errors, turning_angle
+from deck_sim.recording import schema
+from deck_sim.types import SceneFrame, StepFrame
+
+_FILE_ERRORS = (McapError, struct.error, EOFError, ValueError, IndexError, KeyError, zstandard.ZstdError)
+"""What the mcap package raises on a damaged file (CRC errors are ``ValueError``)."""
+_RECORD_LIMIT = 1 << 30  # bytes: a larger record length is corruption, not data
+
+
+class LogError(ValueError):
+    """An episode log cannot be used: missing, empty, not MCAP, corrupt or not a deck_sim log (the message names
+    the file and the problem)."""
+
+
+class TruncatedLogError(LogError):
+    """The log ends before its footer: its writer stopped mid-file (killed or crashed). ``recover`` repairs it.
+
+    (A log damaged inside, e.g. a chunk failing its CRC, raises ``LogError``; ``recover`` keeps what precedes the
+    damage.)"""
+
+
+@dataclass(frozen=True)
+class LogEvent:
+    """One ``/events`` message.
+
+    Attributes:
+        time_ns: Log time, ns (simulation time on the log's time base).
+        episode: Index of the episode it belongs to.
+        kind: One of ``schema.EVENT_KINDS``.
+        level: Foxglove log level name (``INFO``, ``WARNING``, ``ERROR``, ...).
+        message: The human-readable text.
+    """
+
+    time_ns: int
+    episode: int
+    kind: str
+    level: str
+    message: str
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """A topic of the log: its schema and encodings and how many messages it holds."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    message_encoding: str
+    count: int
+
+
+@dataclass(frozen=True)
+class EpisodeScore:
+    """An episode re-scored from its log alone.
+
+    Attributes:
+        result: The same ``EpisodeResult`` as ``deck_sim.rollout.run_episode`` returned live.
+        ade: Average displacement error of the movers' predictions, m (NaN without prediction).
+        fde: Final displacement error at the horizon, m (NaN without prediction).
+        prediction_samples: (step, mover) pairs scored for ADE and FDE.
+    """
+
+    result: EpisodeResult
+    ade: float
+    fde: float
+    prediction_samples: int
+
+
+@dataclass
+class _Raw:
+    """The records of a log, in file order."""
+
+    header: Header | None = None
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    messages: list[Message] = field(default_factory=list)
+    metadata: list[Metadata] = field(default_factory=list)
+    attachments: list[Attachment] = field(default_factory=list)
+    complete: bool = False
+    stopped_at: str = ""
+
+
+def _read_records(path: Path, allow_truncated: bool) -> _Raw:
+    """Every complete record of the file; a damaged tail is an error unless ``allow_truncated``."""
+    try:
+        size = path.stat().st_size
+        stream = open(path, "rb")  # noqa: SIM115 - closed below
+    except FileNotFoundError:
+        raise LogError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise LogError(f"{path}: is a directory, not an MCAP file") from None
+    except OSError as err:
+        raise LogError(f"{path}: cannot open: {err.strerror}") from None
+    raw = _Raw()
+    with stream:
+        if size == 0:
+            raise LogError(f"{path}: empty file, not an MCAP log")
+        if stream.read(8) != b"\x89MCAP0\r\n":
+            raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        stream.seek(0)
+        reader = StreamReader(stream, validate_crcs=True, record_size_limit=_RECORD_LIMIT)
+        try:
+            for record in reader.records:
+                if isinstance(record, Message):
+                    raw.messages.append(record)
+                elif isinstance(record, Schema):
+                    raw.schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    raw.channels[record.id] = record
+                elif isinstance(record, Metadata):
+                    raw.metadata.append(record)
+                elif isinstance(record, Attachment):
+                    raw.attachments.append(record)
+                elif isinstance(record, Header):
+                    raw.header = record
+                elif isinstance(record, Footer):
+                    raw.complete = True
+        except _FILE_ERRORS as err:
+            at = stream.tell()
+            what = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+            raw.stopped_at = f"byte {at} of {size} ({what})"
+            # running out of bytes (or a record longer than the rest of the file) is a cut; anything else damage
+            cut = isinstance(err, EndOfFile | struct.error | RecordLengthLimitExceeded) or at >= size
+            if raw.complete or allow_truncated:  # damage after the footer leaves the content whole
+                pass
+            elif cut:
+                raise TruncatedLogError(
+                    f"{path}: the log is truncated: it ends at byte {size} before its footer ({what}); its writer "
+                    f"was probably killed. `deck-sim log recover {path}` writes a valid copy holding every "
+                    "complete chunk"
+                ) from None
+            else:
+                raise LogError(
+                    f"{path}: the log is damaged at byte {at} of {size} ({what}). `deck-sim log recover {path}` "
+                    "writes a valid copy holding every record before the damage"
+                ) from None
+    return raw
+
+
+class LoggedEpisode:
+    """One episode of a log: its scene, steps and events (steps are decoded on first use).
+
+    Attributes:
+        index: The episode's index in its run.
+        start_ns: Log time of its start, ns.
+        complete: Whether the log holds its end (a killed writer leaves the last one incomplete).
+        scene: What stayed fixed during it.
+        events: Its ``/events`` messages.
+    """
+
+    def __init__(
+        self,
+        index: int,
+        start_ns: int,
+        scene: SceneFrame,
+        events: list[LogEvent],
+        messages: dict[str, list[tuple[Message, Any]]],
+        decode: Callable[[Message], Any],
+    ) -> None:
+        self.index = index
+        self.start_ns = start_ns
+        self.scene = scene
+        self.events = events
+        self.complete = any(e.kind == "episode_end" for e in events)
+        self._messages = messages
+        self._decode = decode
+        self._steps: list[StepFrame] | None = None
+
+    def __repr__(self) -> str:
+        return f"LoggedEpisode(index={self.index}, complete={self.complete}, steps={len(self.steps)})"
+
+    @property
+    def steps(self) -> list[StepFrame]:
+        """Every step whose messages the log holds whole, step 0 (the reset) first."""
+        if self._steps is None:
+            self._steps = self._decode_steps()
+        return self._steps
+
+    @property
+    def duration(self) -> float:
+        """Simulated seconds from the reset to the last step logged."""
+        steps = self.steps
+        return steps[-1].time if steps else 0.0
+
+    @property
+    def outcome(self) -> str | None:
+        """The outcome event's kind (goal, collision, timeout, off_surface, diverged); ``None`` if incomplete."""
+        for e in self.events:
+            if e.kind in ("goal", "collision", "timeout", "off_surface", "diverged"):
+                return e.kind
+        return None
+
+    def _decode_steps(self) -> list[StepFrame]:
+        scene = self.scene
+        n = len(scene.mover_names)
+        tf = {m.log_time: m for m, _ in self._messages.get(schema.TF, [])}
+        pred = {m.log_time: m for m, _ in self._messages.get(schema.PREDICTION, [])}
+        steps = []
+        for m, state in self._messages.get(schema.STATE, []):
+            if m.log_time not in tf:  # the step's /tf was lost with a truncated tail
+                continue
+            transforms = self._decode(tf[m.log_time])
+            poses = {
+                t.child_frame_id: (
+                    t.translation.x,
+                    t.translation.y,
+                    t.translation.z,
+                    t.rotation.w,
+                    t.rotation.x,
+                    t.rotation.y,
+                    t.rotation.z,
+                )
+                for t in transforms.transforms
+            }
+            try:
+                agent = np.array(poses[schema.AGENT_FRAME], dtype=np.float64)
+                movers = np.array([poses[name] for name in scene.mover_names], dtype=np.float64).reshape(n, 7)
+            except KeyError as err:
+                raise LogError(f"episode {self.index}: /tf at {m.log_time} ns lacks frame {err}") from None
+            p = self._decode(pred[m.log_time]) if m.log_time in pred else None
+            if p is not None:
+                lines = {e.id: e.lines[0].points for e in p.entities}
+                prediction = np.array(
+                    [[(q.x, q.y) for q in lines[f"prediction/{name}"][1:]] for name in scene.mover_names],
+                    dtype=np.float64,
+                ).reshape(n, -1, 2)
+            else:
+                prediction = np.zeros((n, 0, 2))
+            action = None if state["action_x"] is None else np.array([state["action_x"], state["action_y"]])
+            steps.append(
+                StepFrame(
+                    episode=int(state["episode"]),
+                    step=int(state["step"]),
+                    time=float(state["time"]),
+                    action=action,
+                    agent_pose=agent,
+                    heading=float(state["heading"]),
+                    speed=float(state["speed"]),
+                    mover_poses=movers,
+                    prediction=prediction,
+                    reward_terms={k: float(state[k]) for k in ("r1", "r2", "r3", "r4", "total")},
+                    distance_to_goal=schema.from_number(state["distance_to_goal"]),
+                    min_clearance=schema.from_number(state["min_clearance"]),
+                    predictor_fallbacks=int(state["predictor_fallbacks"]),
+                    collision=state["collision"],
+                    reached_goal=bool(state["reached_goal"]),
+                    left_surface=bool(state["left_surface"]),
+                    diverged=bool(state["diverged"]),
+                    last=bool(state["last"]),
+                    discount=None if state["discount"] is None else float(state["discount"]),
+                )
+            )
+        return steps
+
+    def rescore(self) -> EpisodeScore:
+        """Success, path length, turning angle, clearance and prediction ADE/FDE from the log alone.
+
+        The result equals, field for field, what ``run_episode`` measured live (same float64 inputs, same
+        functions, same order of summation).
+
+        Raises:
+            LogError: the episode is incomplete.
+        """
+        if not self.complete:
+            raise LogError(f"episode {self.index} is incomplete (the log stops before its end): it cannot be scored")
+        steps = self.steps
+        if not steps or steps[0].step != 0 or [s.step for s in steps] != list(range(len(steps))):
+            raise LogError(f"episode {self.index}: the log's steps are not 0..{len(steps) - 1} in order")
+        xy = np.array([s.agent_xy for s in steps])
+        total = 0.0
+        min_clear = steps[0].min_clearance
+        fallbacks = 0
+        for s in steps[1:]:
+            total += float(s.reward_terms["total"])
+            min_clear = min(min_clear, s.min_clearance)
+            fallbacks += s.predictor_fallbacks
+        last = steps[-1]
+        truncated = last.discount is not None and last.discount > 0 and not last.reached_goal
+        flags = {
+            "diverged": last.diverged,
+            "collision": last.collision,
+            "left_surface": last.left_surface,
+            "reached_goal": last.reached_goal,
+        }
+        result = EpisodeResult(
+            scene=self.scene.scene,
+            episode=self.index,
+            outcome=outcome_of(flags, truncated),
+            steps=last.step,
+            sim_time=float(last.time),
+            reward=total,
+            path_length=path_length(xy),
+            start_target_distance=float(np.linalg.norm(self.scene.target_xy - xy[0])),
+            turning_angle_deg=float(np.degrees(turning_angle(xy))),
+            min_clearance=float(min_clear),
+            collision_partner=last.collision,
+            predictor_fallbacks=int(fallbacks),
+        )
+        ade, fde, samples = prediction_errors(
+            np.stack([s.prediction for s in steps]), np.stack([s.mover_xy for s in steps])
+        )
+        return EpisodeScore(result=result, ade=ade, fde=fde, prediction_samples=samples)
+
+
+class EpisodeLog:
+    """An episode log written by ``EpisodeRecorder``, read whole on construction.
+
+    Args:
+        path: The ``.mcap`` file.
+        allow_truncated: Read what a truncated log holds instead of raising ``TruncatedLogError``.
+
+    Attributes:
+        path: The file.
+        truncated: The file ends before its footer (only with ``allow_truncated``).
+        metadata: The run's ``deck_sim`` metadata record (scene, seed, predictor, policy, versions, ...).
+        attachments: Stored files by name: (media type, bytes).
+        library: The writer's library string from the MCAP header.
+
+    Raises:
+        LogError: the file is missing, empty, not MCAP, damaged or not a deck_sim log.
+        TruncatedLogError: the file ends before its footer (and ``allow_truncated`` is false).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], allow_truncated: bool = False) -> None:
+        self.path = Path(path)
+        raw = _read_records(self.path, allow_truncated)
+        self.truncated = not raw.complete
+        self.library = raw.header.library if raw.header else ""
+        records = {m.name: dict(m.metadata) for m in raw.metadata}
+        if schema.METADATA_NAME not in records:
+            raise LogError(
+                f"{self.path}: an MCAP file but not a deck_sim episode log (no '{schema.METADATA_NAME}' metadata "
+                "record)"
+            )
+        self.metadata: dict[str, str] = records[schema.METADATA_NAME]
+        self.attachments: dict[str, tuple[str, bytes]] = {a.name: (a.media_type, a.data) for a in raw.attachments}
+        self._raw = raw
+        self._decode()
+
+    def _decode(self) -> None:
+        raw = self._raw
+        factory = DecoderFactory()
+        decoders: dict[int, Any] = {}
+        counts: dict[int, int] = defaultdict(int)
+        for ch in raw.channels.values():
+            sch = raw.schemas.get(ch.schema_id)
+            if ch.message_encoding == "json":
+                decoders[ch.id] = json.loads
+            else:
+                try:
+                    decoders[ch.id] = factory.decoder_for(ch.message_encoding, sch)
+                except _FILE_ERRORS as err:
+                    raise LogError(f"{self.path}: cannot decode topic {ch.topic}: {err}") from None
+        by_topic: dict[str, list[tuple[Message, Any]]] = defaultdict(list)
+        for m in raw.messages:
+            ch = raw.channels.get(m.channel_id)
+            decode = decoders.get(m.channel_id)
+            if ch is None or decode is None:
+                raise LogError(f"{self.path}: message on unknown or undecodable channel {m.channel_id}")
+            counts[m.channel_id] += 1
+            if ch.topic in (schema.STATE, schema.EVENTS, schema.SCENE):
+                try:
+                    by_topic[ch.topic].append((m, decode(m.data)))
+                except _FILE_ERRORS as err:
+                    raise LogError(
+                        f"{self.path}: a {ch.topic} message at {m.log_time} ns does not decode: {err}"
+                    ) from None
+            else:
+                by_topic[ch.topic].append((m, None))  # decoded per episode, on demand
+        self._decoders = decoders
+        self.topics: dict[str, TopicInfo] = {}
+        for ch in raw.channels.values():
+            sch = raw.schemas.get(ch.schema_id)
+            self.topics[ch.topic] = TopicInfo(
+                topic=ch.topic,
+                schema_name=sch.name if sch else "",
+                schema_encoding=sch.encoding if sch else "",
+                message_encoding=ch.message_encoding,
+                count=counts[ch.id],
+            )
+        # episodes start at their episode_start event; every message belongs to the last start before it
+        starts = sorted(
+            (m.log_time, i) for i, (m, log) in enumerate(by_topic.get(schema.EVENTS, [])) if log.name == "episode_start"
+        )
+        start_times = [t for t, _ in starts]
+        grouped: list[dict[str, list[tuple[Message, Any]]]] = [defaultdict(list) for _ in starts]
+        for topic, items in by_topic.items():
+            for m, msg in items:
+                k = bisect.bisect_right(start_times, m.log_time) - 1
+                if k < 0:
+                    raise LogError(f"{self.path}: a {topic} message at {m.log_time} ns precedes every episode start")
+                grouped[k][topic].append((m, msg))
+        self._episodes: list[LoggedEpisode] = []
+        for (t0, _), msgs in zip(starts, grouped, strict=True):
+            scenes = msgs.get(schema.SCENE, [])
+            states = msgs.get(schema.STATE, [])
+            if not scenes or not states:
+                continue  # the writer was killed before the episode's scene or first step reached the disk
+            deck = next((e for e in scenes[0][1].entities if e.id == "deck"), None)
+            frame = next((kv.value for kv in deck.metadata if kv.key == "scene_frame"), None) if deck else None
+            if frame is None:
+                raise LogError(f"{self.path}: the /scene message at {t0} ns lacks the deck entity's scene_frame")
+            scene = schema.scene_from_json(frame)
+            events = [
+                LogEvent(m.log_time, scene.episode, log.name, _level_name(log.level), log.message)
+                for m, log in msgs.get(schema.EVENTS, [])
+            ]
+            self._episodes.append(LoggedEpisode(scene.episode, t0, scene, events, msgs, self._decode_message))
+
+    def _decode_message(self, m: Message) -> Any:
+        try:
+            return self._decoders[m.channel_id](m.data)
+        except _FILE_ERRORS as err:
+            topic = self._raw.channels[m.channel_id].topic
+            raise LogError(f"{self.path}: a {topic} message at {m.log_time} ns does not decode: {err}") from None
+
+    # -- public ------------------------------------------------------------------------------------------
+    @property
+    def episodes(self) -> list[LoggedEpisode]:
+        """Every episode the log holds, in order (the last may be incomplete)."""
+        return list(self._episodes)
+
+    def episode(self, index: int) -> LoggedEpisode:
+        """The episode with this index (its ``index``, the run's episode number)."""
+        for ep in self._episodes:
+            if ep.index == index:
+                return ep
+        raise LogError(f"{self.path}: no episode {index}; the log holds {[e.index for e in self._episodes]}")
+
+    def steps(self, episode: int | None = None) -> Iterator[StepFrame]:
+        """Every step of one episode, or of all episodes in order."""
+        for ep in self._episodes if episode is None else [self.episode(episode)]:
+            yield from ep.steps
+
+    def events(self, episode: int | None = None) -> Iterator[LogEvent]:
+        """Every event of one episode, or of all episodes in order."""
+        for ep in self._episodes if episode is None else [self.episode(episode)]:
+            yield from ep.events
+
+    def rescore(self, episode: int) -> EpisodeScore:
+        """``LoggedEpisode.rescore`` of one episode."""
+        return self.episode(episode).rescore()
+
+    @property
+    def duration(self) -> float:
+        """Simulated seconds of all episodes together."""
+        return float(sum(ep.duration for ep in self._episodes))
+
+
+def _level_name(level: int) -> str:
+    names = {0: "UNKNOWN", 1: "DEBUG", 2: "INFO", 3: "WARNING", 4: "ERROR", 5: "FATAL"}
+    return names.get(int(level), str(level))
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What ``recover`` kept.
+
+    Attributes:
+        path: The valid log written.
+        was_truncated: The source ended before its footer.
+        messages: Messages copied.
+        episodes_complete: Complete episodes in the copy.
+        episodes_incomplete: Episodes whose end was lost (0 or 1).
+        stopped_at: Where and why reading the source stopped ("" if it was whole).
+    """
+
+    path: Path
+    was_truncated: bool
+    messages: int
+    episodes_complete: int
+    episodes_incomplete: int
+    stopped_at: str
+
+
+def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None) -> Recovery:
+    """Copy every complete record of a (truncated) log into a new, valid MCAP file.
+
+    Args:
+        path: The damaged log.
+        out: Where to write the copy (default: beside it, ``<name>.recovered.mcap``); must differ from ``path``.
+
+    Raises:
+        LogError: the source is missing, not MCAP, or holds no deck_sim metadata; or ``out`` is ``path``.
+    """
+    src = Path(path)
+    dst = Path(out) if out is not None else src.with_name(src.stem + ".recovered.mcap")
+    if dst.resolve() == src.resolve():
+        raise LogError(f"{src}: recover writes a new file; give an output path other than the source")
+    raw = _read_records(src, allow_truncated=True)
+    if not any(m.name == schema.METADATA_NAME for m in raw.metadata):
+        raise LogError(f"{src}: not a deck_sim episode log (no '{schema.METADATA_NAME}' metadata record)")
+    with open(dst, "wb") as f:
+        writer = Writer(f, compression=CompressionType.ZSTD)
+        library = raw.header.library if raw.header else ""
+        writer.start(profile=raw.header.profile if raw.header else "", library=f"{library}; recovered by deck_sim")
+        for m in raw.metadata:
+            writer.add_metadata(m.name, dict(m.metadata))
+        for a in raw.attachments:
+            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in sorted(raw.schemas.items())}
+        channel_ids = {
+            cid: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), dict(c.metadata))
+            for cid, c in sorted(raw.channels.items())
+        }
+        for m in raw.messages:
+            writer.add_message(channel_ids[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
+        writer.finish()
+    log = EpisodeLog(dst)
+    complete = sum(ep.complete for ep in log.episodes)
+    return Recovery(
+        path=dst,
+        was_truncated=not raw.complete,
+        messages=len(raw.messages),
+        episodes_complete=complete,
+        episodes_incomplete=len(log.episodes) - complete,
+        stopped_at=raw.stopped_at,
+    )

@@ -1,0 +1,124 @@
+"""Show a logged episode in MuJoCo again: rebuild the scene from the log, pose every body from the logged states,
+render (``deck-sim log video``).
+
+Only poses are replayed, not dynamics: the agent's and movers' root bodies take their logged 3D poses, the static
+obstacles and the target their logged places; wheels and steering stay as the reset left them.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import tomllib
+from dm_control import composer, mjcf
+from dm_control.mujoco.engine import TextOverlay
+
+from deck_sim.entities import Pedestrian
+from deck_sim.environment import make_environment
+from deck_sim.recording import EpisodeLog, LogError, LoggedEpisode
+from deck_sim.scenes import SceneSpecError, parse_scene
+from deck_sim.types import SceneFrame, StepFrame
+
+_PATH_RGBA = np.array([0.85, 0.15, 0.1, 1.0], dtype=np.float32)
+_PREDICTION_RGBA = np.array([0.2, 0.6, 1.0, 1.0], dtype=np.float32)
+
+
+def replay_environment(log: EpisodeLog) -> composer.Environment:
+    """A fresh environment of the log's scene (from its ``scene.toml`` attachment), reset once."""
+    if "scene.toml" not in log.attachments:
+        raise LogError(f"{log.path}: no scene.toml attachment; cannot rebuild the scene")
+    try:
+        spec = parse_scene(tomllib.loads(log.attachments["scene.toml"][1].decode()), f"{log.path.name}:scene.toml")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, SceneSpecError) as err:
+        raise LogError(f"{log.path}: its scene.toml does not load: {err}") from None
+    env = make_environment(spec, seed=0)
+    env.reset()
+    return env
+
+
+def pose_bodies(env: composer.Environment, scene: SceneFrame, step: StepFrame) -> None:
+    """Place the agent, movers, static obstacles and target of ``env`` as logged, then update the kinematics."""
+    task, physics = env.task, env.physics
+    names = tuple(m.mjcf_model.model for m in task.movers)
+    if names != scene.mover_names:
+        raise LogError(f"the log's movers {scene.mover_names} are not the scene's {names}")
+    for entity, pose in ((task.agent, step.agent_pose), *zip(task.movers, step.mover_poses, strict=True)):
+        if isinstance(entity, Pedestrian):  # slide joints in the attachment frame
+            frame = physics.bind(mjcf.get_attachment_frame(entity.mjcf_model))
+            physics.bind(list(entity.joints)).qpos = pose[:2] - frame.pos[:2]
+        else:
+            entity.set_pose(physics, position=pose[:3], quaternion=pose[3:7])
+    for prop, (x, y, yaw) in zip(task.statics, scene.static_poses, strict=False):
+        prop.set_pose(physics, np.array([x, y, 0.0]), np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))
+    physics.bind(task.root_entity.mjcf_model.find("body", "target")).pos = [*scene.target_xy, 0.0]
+    physics.forward()
+
+
+def _segments(scn: mujoco.MjvScene, points: np.ndarray, width: float, rgba: np.ndarray) -> None:
+    """Add capsules joining consecutive 3D points to the scene (as many as it has room for)."""
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        if scn.ngeom >= scn.maxgeom or np.allclose(a, b):
+            continue
+        scn.ngeom += 1  # the geoms view covers the first ngeom entries
+        geom = scn.geoms[scn.ngeom - 1]
+        mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.zeros(9), rgba)
+        mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, width, a, b)
+
+
+def render_episode(
+    episode: LoggedEpisode,
+    env: composer.Environment,
+    out: str | os.PathLike[str],
+    width: int = 640,
+    height: int | None = None,
+    camera: str = "top",
+    speedup: float = 4.0,
+    max_steps: int | None = None,
+) -> tuple[Path, int, float]:
+    """Write an MP4 of ``episode`` posed in ``env`` (from ``replay_environment``), with the agent's path so far
+    (red) and the movers' predictions (blue) drawn in.
+
+    Args:
+        width: Frame width in pixels (rounded to a multiple of 16).
+        height: Frame height; default: the width over the top view's aspect (``camera="top"``) or 3/4 of it.
+        camera: ``top`` (the whole surface from above), ``follow`` or ``agent/chase``.
+        speedup: Playback speed over simulated time.
+        max_steps: Render at most this many steps (default: all).
+
+    Returns:
+        (path, frames, frames per second).
+    """
+    import imageio.v3 as iio
+
+    steps = episode.steps if max_steps is None else episode.steps[: max_steps + 1]
+    if not steps:
+        raise LogError(f"episode {episode.index} holds no steps to render")
+    width = max(16, int(round(width / 16)) * 16)
+    if height is None:
+        height = width / env.task.top_view_aspect if camera == "top" else 0.75 * width
+    height = max(16, int(round(height / 16)) * 16)
+    z = 0.6
+    frames = []
+    path: list[np.ndarray] = []
+    for s in steps:
+        pose_bodies(env, episode.scene, s)
+        path.append(np.array([*s.agent_xy, z]))
+
+        def draw(physics: object, scn: mujoco.MjvScene, s: StepFrame = s) -> None:
+            _segments(scn, np.array(path), 0.35, _PATH_RGBA)
+            for i in range(s.prediction.shape[0]):
+                line = np.vstack([s.mover_xy[i][None], s.prediction[i]])
+                _segments(scn, np.column_stack([line, np.full(len(line), z)]), 0.25, _PREDICTION_RGBA)
+
+        text = TextOverlay(
+            title=f"episode {episode.index}", body=f"{s.time:.1f} s", style="normal", position="bottom left"
+        )
+        frames.append(env.physics.render(height, width, camera_id=camera, overlays=(text,), scene_callback=draw))
+    fps = speedup / episode.scene.dt
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(out, np.stack(frames), fps=fps, codec="libx264", macro_block_size=16)
+    return out, len(frames), fps
