@@ -1,12 +1,20 @@
-"""Policies that need no training, with the ``act(observation) -> action`` interface of learned agents.
+"""Policies with the ``act(observation) -> action`` interface: references that need no training, and learned ones.
 
-``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (run it with the
-``oracle`` predictor so that it sees the movers' true future); ``random`` and ``zero`` are references.
+``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (it plans around the
+observation's predicted mover positions: the ``oracle`` predictor shows it the movers' true future, ``mpc`` the
+MPC forecast); ``random`` and ``zero`` are references. ``LearnedPolicy`` runs an actor exported by ``training``
+(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone; ``mddpg`` and ``ddpg`` name the policies
+shipped in ``deck_sim/trained/`` for the environment's scene.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+import json
+import os
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 from dm_control import composer
@@ -65,15 +73,146 @@ class ZeroPolicy:
         return np.zeros(2)
 
 
-POLICY_NAMES = ("scripted", "random", "zero")
+ACTOR_FORMAT = "deck_sim.actor/1"
+TRAINED_DIR = Path(__file__).resolve().parent / "trained"
+
+
+class PolicyFileError(ValueError):
+    """An actor file is missing, corrupt, or does not fit the environment it is asked to act in."""
+
+
+class LearnedPolicy:
+    """A trained actor, mu(s) = tanh(MLP(normalise(s))), evaluated with numpy from a weights-only ``.npz`` file.
+
+    The file holds the layers' weights and biases (``w0``, ``b0``, ...), the observation normaliser's statistics
+    and a JSON ``meta`` record: format, scene, algorithm, predictor, the observation keys and shapes it was
+    trained on, the training configuration. ``act`` flattens the observation dict in the trained key order and
+    checks every shape, so an actor asked to act on another scene or predictor fails with a clear error.
+    """
+
+    def __init__(self, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], source: str = "<arrays>") -> None:
+        self.meta = dict(meta)
+        self.source = source
+        try:
+            self.keys = tuple(self.meta["observation_keys"])
+            self.shapes = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
+            n_layers = sum(1 for k in arrays if k.startswith("w"))
+            self.weights = [np.asarray(arrays[f"w{i}"], dtype=np.float64) for i in range(n_layers)]
+            self.biases = [np.asarray(arrays[f"b{i}"], dtype=np.float64) for i in range(n_layers)]
+            self.norm_enabled = bool(arrays["norm_enabled"])
+            self.norm_mean = np.asarray(arrays["norm_mean"], dtype=np.float64)
+            self.norm_std = np.asarray(arrays["norm_std"], dtype=np.float64)
+            self.norm_clip = float(arrays["norm_clip"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise PolicyFileError(f"{source}: not a complete deck_sim actor ({err!r} missing or malformed)") from err
+        if self.meta.get("format") != ACTOR_FORMAT:
+            raise PolicyFileError(f"{source}: format {self.meta.get('format')!r}, expected {ACTOR_FORMAT!r}")
+        dim = int(sum(np.prod(s) for s in self.shapes.values()))
+        sizes = [dim] + [w.shape[0] for w in self.weights]
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            if w.ndim != 2 or w.shape[1] != sizes[i] or b.shape != (w.shape[0],):
+                raise PolicyFileError(f"{source}: layer {i} has weight {w.shape} and bias {b.shape}, "
+                                      f"which do not follow a layer of {sizes[i]} inputs")
+        if not self.weights or sizes[-1] != 2 or self.norm_mean.shape != (dim,) or self.norm_std.shape != (dim,):
+            raise PolicyFileError(f"{source}: expected {dim} inputs and 2 outputs, normaliser of size {dim}")
+        if not all(np.all(np.isfinite(a)) for a in (*self.weights, *self.biases, self.norm_mean, self.norm_std)):
+            raise PolicyFileError(f"{source}: the actor holds NaN or infinite weights")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> LearnedPolicy:
+        """Read an actor file written by ``training`` (``actor.npz``); ``PolicyFileError`` if it cannot."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except FileNotFoundError as err:
+            raise PolicyFileError(f"{path}: no such actor file") from err
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            raise PolicyFileError(f"{path}: not a readable actor file ({err})") from err
+        if "meta" not in arrays:
+            raise PolicyFileError(f"{path}: not a deck_sim actor file (no 'meta' record)")
+        try:
+            meta = json.loads(str(arrays.pop("meta")))
+        except json.JSONDecodeError as err:
+            raise PolicyFileError(f"{path}: the 'meta' record is not JSON ({err})") from err
+        return cls(arrays, meta, source=str(path))
+
+    @property
+    def predictor(self) -> str:
+        """The predictor whose forecasts the actor was trained on (``none`` for DDPG)."""
+        return str(self.meta.get("predictor", "none"))
+
+    def reset(self) -> None:
+        """The actor has no memory."""
+
+    def flatten(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The observation dict as the flat vector the actor was trained on; ``PolicyFileError`` on a mismatch."""
+        parts = []
+        for k in self.keys:
+            if k not in observation:
+                raise PolicyFileError(
+                    f"{self.source}: the actor needs observation {k!r}, which this environment does not give "
+                    f"(trained on scene {self.meta.get('scene')!r} with predictor {self.predictor!r})"
+                )
+            v = np.asarray(observation[k], dtype=np.float64)
+            if v.shape != self.shapes[k]:
+                raise PolicyFileError(
+                    f"{self.source}: observation {k!r} has shape {v.shape}, the actor was trained on "
+                    f"{self.shapes[k]} (scene {self.meta.get('scene')!r})"
+                )
+            parts.append(v.ravel())
+        return np.concatenate(parts)
+
+    def act_flat(self, x: np.ndarray) -> np.ndarray:
+        """Actions (..., 2) for flat observations (..., dim)."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.norm_enabled:
+            x = np.clip((x - self.norm_mean) / self.norm_std, -self.norm_clip, self.norm_clip)
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            x = x @ w.T + b
+            if i < len(self.weights) - 1:
+                x = np.maximum(x, 0.0)
+        return np.tanh(x)
+
+    def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The actor's action (2,) for one observation dict."""
+        return self.act_flat(self.flatten(observation))
+
+
+POLICY_NAMES = ("scripted", "random", "zero", "mddpg", "ddpg")
+
+
+def shipped_policy_path(algo: str, scene: str) -> Path:
+    """The actor file shipped for ``algo`` (``mddpg`` or ``ddpg``) on ``scene``; ``PolicyFileError`` if none is."""
+    path = TRAINED_DIR / f"{scene}_{algo}.npz"
+    if not path.exists():
+        shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
+        raise PolicyFileError(
+            f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); "
+            f"train one with deck-sim train --algo {algo} --scene {scene}, or pass an actor file"
+        )
+    return path
+
+
+def policy_file(name: str, scene: str) -> Path | None:
+    """The actor file behind policy ``name`` on ``scene``: a shipped one, a path, or None for a reference policy."""
+    if name in ("mddpg", "ddpg"):
+        return shipped_policy_path(name, scene)
+    if name.endswith(".npz") or os.sep in name:
+        return Path(name)
+    return None
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``; raises ``ValueError`` listing the known names."""
+    """The policy called ``name`` for ``env``: a reference policy, a shipped learned one (``mddpg``, ``ddpg``)
+    or an actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
     if name == "scripted":
         return ScriptedPolicy(env)
     if name == "random":
         return RandomPolicy(seed)
     if name == "zero":
         return ZeroPolicy()
-    raise ValueError(f"unknown policy {name!r}; expected one of {', '.join(POLICY_NAMES)}")
+    path = policy_file(name, env.task.spec.name)
+    if path is not None:
+        return LearnedPolicy.load(path)
+    raise ValueError(f"unknown policy {name!r}; expected one of {', '.join(POLICY_NAMES)} or an actor .npz file")

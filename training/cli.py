@@ -4,6 +4,8 @@ deck-sim scenes                                     list the scenes
 deck-sim run --scene deck1 --policy scripted --episodes 20
                                                     play episodes, print and save the metrics
 deck-sim render --scene deck2 --out ep.mp4          a short video (offscreen) and a top-down PNG
+deck-sim train --algo mddpg --scene deck1 --steps 60000 --seed 0
+                                                    train an agent (also ddpg; dqn, a2c via stable-baselines3)
 deck-sim log info runs/deck1-scripted-seed0/episodes.mcap
                                                     an episode log: episodes, outcomes, topics (also: log plot,
                                                     log video, log export --csv, log recover)
@@ -69,6 +71,22 @@ def _format_summary(name: str, policy: str, predictor: str, summary: dict[str, f
     return "\n".join(lines)
 
 
+def _default_predictor(policy: str, scene: str) -> str | None:
+    """The predictor a policy runs with unless told otherwise: the oracle for the scripted planner, the one a
+    learned actor was trained on, else the scene's own."""
+    if policy == "scripted":
+        return "oracle"
+    from deck_sim.policies import LearnedPolicy, policy_file
+
+    path = policy_file(policy, Path(scene).stem)
+    return LearnedPolicy.load(path).predictor if path is not None else None
+
+
+def _policy_label(policy: str) -> str:
+    """A policy's name for folder names (an actor file's stem)."""
+    return Path(policy).stem if policy.endswith(".npz") else policy
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -78,13 +96,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from deck_sim.rollout import run_episode
 
     overrides = {}
-    predictor = args.predictor or ("oracle" if args.policy == "scripted" else None)
+    predictor = args.predictor or _default_predictor(args.policy, args.scene)
     if predictor:
         overrides["episode__predictor"] = predictor
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
-    out = Path(args.out) if args.out else Path("runs") / f"{args.scene}-{args.policy}-seed{args.seed}"
+    out = Path(args.out) if args.out else Path("runs") / f"{args.scene}-{_policy_label(args.policy)}-seed{args.seed}"
     recorder = _open_run_recorder(args, env, out)
     results = []
     t0 = time.perf_counter()
@@ -128,9 +146,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import deck_sim
     from deck_sim.policies import make_policy
 
-    env = deck_sim.load(
-        args.scene, seed=args.seed, **({"episode__predictor": "oracle"} if args.policy == "scripted" else {})
-    )
+    predictor = _default_predictor(args.policy, args.scene)
+    env = deck_sim.load(args.scene, seed=args.seed, **({"episode__predictor": predictor} if predictor else {}))
     policy = make_policy(args.policy, env, seed=args.seed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -156,6 +173,63 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- training: `deck-sim train` --------------------------------------------------------------------------------
+def _parse_set(items: list[str]) -> dict[str, object]:
+    """``--set field=value`` pairs as config fields (values parsed as JSON where they can be, else strings)."""
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set expects field=value, got {item!r}")
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from training.config import ConfigError
+    from training.loop import CheckpointError
+
+    out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{Path(args.scene).stem}-seed{args.seed}"
+    try:
+        if args.algo in ("dqn", "a2c"):
+            from training.baselines import train_baseline
+
+            summary = train_baseline(args.algo, args.scene, args.steps, args.seed, out, resume=args.resume,
+                                     progress=not args.quiet, **_parse_set(args.set))
+        else:
+            from training.config import make_config
+            from training.loop import Trainer, config_from_checkpoint
+
+            if args.resume:
+                config = config_from_checkpoint(out)
+                if args.steps is not None:
+                    config.total_steps = int(args.steps)
+            else:
+                fields = {"algo": args.algo, "scene": args.scene, "seed": args.seed, **_parse_set(args.set)}
+                if args.steps is not None:
+                    fields["total_steps"] = args.steps
+                config = make_config(args.preset, **fields)
+            summary = Trainer(config, out, resume=args.resume, progress=not args.quiet).train()
+    except (ConfigError, CheckpointError) as err:
+        print(f"deck-sim train: error: {err}", file=sys.stderr)
+        return 2
+    ev = summary.get("eval") or {}
+    if ev:
+        print(
+            f"{args.algo} on {args.scene}: {summary['step']} steps in {summary['wall_s']:.0f} s; held-out "
+            f"success {100 * ev['goal_rate']:.1f} %, collision {100 * ev['collision_rate']:.1f} %, "
+            f"timeout {100 * ev['timeout_rate']:.1f} %, mean reward {ev['mean_reward']:.1f}"
+        )
+    if summary.get("stopped"):
+        print(f"stopped at step {summary['step']}; continue with: deck-sim train --algo {args.algo} "
+              f"--out {out} --resume")
+    print(f"wrote {out} (config.json, progress.csv, eval.csv, tb/, checkpoint, exported actor)")
+    return 0
+
+
 # -- episode logs (MCAP): `run --record` and `deck-sim log ...` ------------------------------------------------
 def _add_record_arguments(p: argparse.ArgumentParser) -> None:
     """``--record FILE`` / ``--no-record`` of ``deck-sim run``."""
@@ -177,7 +251,11 @@ def _open_run_recorder(args: argparse.Namespace, env, out: Path):  # noqa: ANN00
     path = Path(args.record) if args.record else out / "episodes.mcap"
     path.parent.mkdir(parents=True, exist_ok=True)
     config = {k: getattr(args, k) for k in ("command", "scene", "policy", "episodes", "seed", "predictor")}
-    return open_recorder(path, env, seed=args.seed, policy=args.policy, config=config, overwrite=True)
+    from deck_sim.policies import policy_file
+
+    actor = policy_file(args.policy, env.task.spec.name)
+    return open_recorder(path, env, seed=args.seed, policy=args.policy, config=config, overwrite=True,
+                         checkpoint=str(actor) if actor is not None else "")
 
 
 def _fmt(x: float, spec: str) -> str:
@@ -406,6 +484,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--top-height", type=int, default=400, help="height of the top-down PNG in pixels")
     p.add_argument("--speedup", type=float, default=2.0, help="video playback speed over real time")
     p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("train", help="train an agent (mddpg, ddpg; dqn, a2c through stable-baselines3)")
+    p.add_argument("--algo", default="mddpg", choices=("mddpg", "ddpg", "dqn", "a2c"))
+    p.add_argument("--scene", default="deck1", help="scene name or TOML path (default deck1)")
+    p.add_argument("--steps", type=int, default=None, help="environment steps (default: the preset's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--preset", default="tuned", help="tuned (default: the switches that pay) or paper (plain DDPG)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override a TrainConfig field, e.g. --set twin_critics=false --set hidden=[128,128]")
+    p.add_argument("--out", default=None, help="run folder (default runs/train-<algo>-<scene>-seed<seed>)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_train)
 
     _register_log_commands(sub)
     return parser

@@ -1,0 +1,147 @@
+"""Learning curves on a scene for the recipes compared in the README: plain DDPG (the paper's recipe), DDPG with the
+switches that pay (current positions only), MDDPG with them (MPC prediction in the observation), and ablations.
+
+Each arm is one ``deck-sim train`` run (``training.loop.Trainer``) in ``--out/<arm>-seed<s>``; its held-out
+evaluations (``eval.csv``: seed 500 stream, never a training episode) give the curves. Prints a table of the final
+held-out success, collision and timeout rates, mean reward, environment steps and training wall-clock time per
+arm, with the machine; plots success and mean episode reward against environment steps and wall-clock time.
+
+    python benchmarks/learning.py [--scene deck1] [--steps 40000] [--arms paper-ddpg,tuned-ddpg,tuned-mddpg]
+                                  [--seeds 0] [--out runs/learning] [--plot docs/learning_deck1.png]
+
+Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
+tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``ABLATIONS``. An arm whose run folder already
+holds a finished run is read back, not retrained (delete the folder to rerun it).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import json  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from common import machine  # noqa: E402
+
+from training.config import make_config  # noqa: E402
+from training.loop import Trainer  # noqa: E402
+
+ABLATIONS: dict[str, dict[str, object]] = {
+    "obsnorm": {"obs_norm": False},
+    "td3": {"twin_critics": False, "target_noise": 0.0, "policy_delay": 1},
+    "vec": {"num_envs": 1, "updates_per_step": 1.0},
+    "demos": {"demo_episodes": 0, "pretrain_updates": 0, "bc_weight": 0.0, "expert_relabel": False},
+    "relabel": {"expert_relabel": False},
+    "bc": {"bc_weight": 0.0},
+}
+
+
+def arm_config(arm: str, scene: str, steps: int, seed: int, eval_every: int, eval_episodes: int):  # noqa: ANN201
+    """The ``TrainConfig`` of an arm name."""
+    parts = arm.split("-")
+    if len(parts) < 2 or parts[0] not in ("paper", "tuned") or parts[1] not in ("ddpg", "mddpg"):
+        raise SystemExit(f"unknown arm {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>]")
+    fields: dict[str, object] = {}
+    if len(parts) > 2:
+        switch = "-".join(parts[3:]) if parts[2] == "no" else ""
+        if switch not in ABLATIONS:
+            raise SystemExit(f"unknown ablation in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}>")
+        fields.update(ABLATIONS[switch])
+    return make_config(
+        parts[0],
+        algo=parts[1],
+        scene=scene,
+        seed=seed,
+        total_steps=steps,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        checkpoint_every=eval_every,
+        **fields,
+    )
+
+
+def read_eval(run: Path) -> list[dict[str, float]]:
+    with open(run / "eval.csv", newline="") as f:
+        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scene", default="deck1")
+    parser.add_argument("--steps", type=int, default=40_000)
+    parser.add_argument("--arms", default="paper-ddpg,tuned-ddpg,tuned-mddpg")
+    parser.add_argument("--seeds", default="0", help="comma-separated training seeds")
+    parser.add_argument("--eval-every", type=int, default=5_000)
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--out", default="runs/learning")
+    parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
+    args = parser.parse_args()
+    print(machine(torch=torch.__version__))
+    arms = args.arms.split(",")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    curves: dict[str, list[list[dict[str, float]]]] = {}
+    for arm in arms:
+        for seed in seeds:
+            run = Path(args.out) / f"{args.scene}-{arm}-seed{seed}"
+            if not (run / "actor.npz").exists():
+                cfg = arm_config(arm, args.scene, args.steps, seed, args.eval_every, args.eval_episodes)
+                resume = (run / "checkpoint.pt").exists()
+                print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
+                Trainer(cfg, run, resume=resume).train()
+            curves.setdefault(arm, []).append(read_eval(run))
+
+    print(f"\nscene {args.scene}; held-out evaluation: {args.eval_episodes} episodes of the seed-500 stream")
+    print("| arm | seeds | steps | train time | success | collision | timeout | mean reward |")
+    print("|---|---|---|---|---|---|---|---|")
+    summary = {}
+    for arm, runs in curves.items():
+        last = [r[-1] for r in runs]
+        row = {
+            k: float(np.mean([x[k] for x in last]))
+            for k in ("step", "wall_s", "success", "collision", "timeout", "reward")
+        }
+        summary[arm] = row
+        print(
+            f"| {arm} | {len(runs)} | {row['step']:.0f} | {row['wall_s'] / 60:.1f} min | "
+            f"{100 * row['success']:.1f} % | {100 * row['collision']:.1f} % | {100 * row['timeout']:.1f} % | "
+            f"{row['reward']:.1f} |"
+        )
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    (Path(args.out) / f"summary_{args.scene}.json").write_text(json.dumps(summary, indent=2))
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for arm, runs in curves.items():
+        for i, r in enumerate(runs):
+            step = [x["step"] for x in r]
+            kw = {"label": arm if i == 0 else None, "color": f"C{arms.index(arm)}", "marker": "o", "ms": 3}
+            axes[0].plot(step, [100 * x["success"] for x in r], **kw)
+            axes[1].plot([x["wall_s"] / 60 for x in r], [100 * x["success"] for x in r], **kw)
+            axes[2].plot(step, [x["reward"] for x in r], **kw)
+    axes[0].set(xlabel="environment steps", ylabel="held-out success (%)", ylim=(-2, 102))
+    axes[1].set(xlabel="training wall-clock (min, this machine)", ylabel="held-out success (%)", ylim=(-2, 102))
+    axes[2].set(xlabel="environment steps", ylabel="mean episode reward (held-out)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower right")
+    fig.suptitle(f"{args.scene}: learning curves ({args.eval_episodes} held-out episodes per point)")
+    fig.tight_layout()
+    plot = Path(args.plot) if args.plot else Path(args.out) / f"learning_{args.scene}.png"
+    plot.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(plot, dpi=110)
+    print(f"wrote {plot}")
+
+
+if __name__ == "__main__":
+    main()

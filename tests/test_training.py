@@ -1,0 +1,417 @@
+"""The DDPG agent's parts by hand (TD target, losses, soft update, replay), and training runs on real scenes:
+determinism, exact resume, clear errors on bad checkpoints, learning beats random on a simple deck."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from training.buffers import ReplayBuffer
+from training.config import ConfigError, TrainConfig, make_config, train_episode_seed
+from training.ddpg import DDPGAgent, soft_update
+from training.envs import FAR, ObservationLayout
+from training.loop import CheckpointError, Trainer, load_checkpoint
+
+
+def _set_linear(layer: torch.nn.Linear, weight, bias) -> None:  # noqa: ANN001
+    with torch.no_grad():
+        layer.weight.copy_(torch.tensor(weight, dtype=torch.float32))
+        layer.bias.copy_(torch.tensor(bias, dtype=torch.float32))
+
+
+def _tiny_agent(**fields) -> DDPGAgent:  # noqa: ANN003
+    """obs 2, action 1, one hidden unit: every network's output is computable by hand."""
+    cfg = TrainConfig(hidden=(1,), gamma=0.9, tau=0.5, batch_size=2, **fields)
+    agent = DDPGAgent(2, 1, cfg)
+    for nets in ((agent.actor, agent.actor_target),):
+        for net in nets:
+            _set_linear(net.net[0], [[1.0, -1.0]], [0.0])  # h = relu(o0 - o1)
+            _set_linear(net.net[2], [[0.5]], [0.0])  # a = tanh(0.5 h)
+    for net in (agent.critic, agent.critic_target):
+        for head in net.heads:
+            _set_linear(head[0], [[1.0, 1.0, 2.0]], [0.0])  # h = relu(o0 + o1 + 2 a)
+            _set_linear(head[2], [[3.0]], [1.0])  # q = 3 h + 1
+    return agent
+
+
+def _batch(obs, action, reward, next_obs, terminated, demo=None):  # noqa: ANN001, ANN202
+    from training.buffers import Batch
+
+    t = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+    demo = t(demo or [0.0] * len(reward))
+    return Batch(t(obs), t(action), t(reward), t(next_obs), t(terminated), demo, t(action), demo)
+
+
+def test_td_target_and_critic_loss_equal_a_hand_computed_case():
+    agent = _tiny_agent()
+    batch = _batch([[1.0, 0.0], [0.5, 0.5]], [[0.5], [-1.0]], [1.0, -2.0], [[2.0, 1.0], [0.0, 3.0]], [0.0, 1.0])
+    # transition 0: mu'(s') = tanh(0.5 * relu(2 - 1)) = tanh(0.5); Q' = 3 relu(3 + 2 tanh 0.5) + 1
+    q_next0 = 3.0 * (3.0 + 2.0 * np.tanh(0.5)) + 1.0
+    y0 = 1.0 + 0.9 * q_next0
+    y1 = -2.0  # terminated: no bootstrap
+    np.testing.assert_allclose(agent.td_target(batch).numpy(), [y0, y1], rtol=1e-6)
+    q0 = 3.0 * (1.0 + 0.0 + 2.0 * 0.5) + 1.0  # Q(s, a) of the stored actions
+    q1 = 3.0 * max(0.0, 0.5 + 0.5 - 2.0) + 1.0
+    stats = agent.update(batch)
+    np.testing.assert_allclose(stats["critic_loss"], ((q0 - y0) ** 2 + (q1 - y1) ** 2) / 2, rtol=1e-6)
+    np.testing.assert_allclose(stats["q"], (q0 + q1) / 2, rtol=1e-6)
+
+
+def test_actor_loss_and_the_twin_critics_minimum_by_hand():
+    agent = _tiny_agent(twin_critics=True)
+    with torch.no_grad():  # second target head: q = 3 h - 4, always 5 below the first
+        agent.critic_target.heads[1][2].bias.fill_(-4.0)
+        agent.critic.heads[1][2].bias.fill_(-4.0)
+    batch = _batch([[1.0, 0.0]], [[0.5]], [0.0], [[2.0, 1.0]], [0.0])
+    y = 0.9 * (3.0 * (3.0 + 2.0 * np.tanh(0.5)) - 4.0)
+    np.testing.assert_allclose(agent.td_target(batch).numpy(), [y], rtol=1e-6)
+    before = copy.deepcopy(agent.critic)
+    stats = agent.update(batch)
+    # the actor loss uses the critic after its update: -Q1(s, mu(s)), mu(s) = tanh(0.5)
+    expected = -_q1_by_hand(agent, np.array([1.0, 0.0]), np.tanh(0.5))
+    np.testing.assert_allclose(stats["actor_loss"], expected, rtol=1e-5)
+    assert not torch.equal(before.heads[0][0].weight, agent.critic.heads[0][0].weight)
+
+
+def _q1_by_hand(agent: DDPGAgent, obs: np.ndarray, action: float) -> float:
+    """Q1 of the agent's (already updated) critic at one state and action, evaluated by hand from its weights."""
+    head = agent.critic.heads[0]
+    w0, b0 = head[0].weight.detach().numpy(), head[0].bias.detach().numpy()
+    w1, b1 = head[2].weight.detach().numpy(), head[2].bias.detach().numpy()
+    h = np.maximum(w0 @ np.array([*obs, action]) + b0, 0.0)
+    return float((w1 @ h + b1)[0])
+
+
+def test_cloning_term_and_q_normalisation_by_hand():
+    from training.buffers import Batch
+
+    agent = _tiny_agent(bc_weight=2.0, q_filter=False, bc_normalise_q=True)
+    t = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+    # two states; only the first has a label (the planner's action -0.5); mu(s0) = tanh(0.5), mu(s1) = tanh(0)
+    batch = Batch(
+        t([[1.0, 0.0], [0.0, 1.0]]),
+        t([[0.0], [0.0]]),
+        t([0.0, 0.0]),
+        t([[0.0, 0.0], [0.0, 0.0]]),
+        t([1.0, 1.0]),
+        t([0.0, 0.0]),
+        t([[-0.5], [0.0]]),
+        t([1.0, 0.0]),
+    )
+    stats = agent.update(batch)
+    np.testing.assert_allclose(stats["bc_loss"], (np.tanh(0.5) + 0.5) ** 2, rtol=1e-6)
+    np.testing.assert_allclose(stats["actor_loss"], -1.0, rtol=1e-6)  # every Q > 0: -mean Q / mean |Q|
+    assert stats["bc_share"] == 1.0
+    with_filter = _tiny_agent(bc_weight=2.0, q_filter=True)
+    assert with_filter.update(batch)["bc_share"] == 0.0  # the critic rates tanh(0.5) above -0.5: not cloned
+
+
+def test_soft_update_is_exact():
+    torch.manual_seed(0)
+    source, target = torch.nn.Linear(3, 2), torch.nn.Linear(3, 2)
+    pairs = zip(source.parameters(), target.parameters(), strict=True)
+    expected = [0.25 * s.detach() + 0.75 * t.detach() for s, t in pairs]
+    soft_update(target, source, 0.25)
+    for e, t in zip(expected, target.parameters(), strict=True):
+        assert torch.equal(e, t.detach())
+    soft_update(target, source, 1.0)
+    for s, t in zip(source.parameters(), target.parameters(), strict=True):
+        assert torch.equal(s, t)
+
+
+def test_buffer_rings_keeps_demonstrations_and_samples_typed_batches():
+    buf = ReplayBuffer(capacity=6, obs_dim=2, act_dim=1)
+    row = lambda v, n: np.full((n, 2), v, dtype=np.float32)  # noqa: E731
+    buf.add_demos(row(-1, 2), np.full((2, 1), -1.0), np.full(2, -1.0), row(-1, 2), np.ones(2))
+    for v in range(6):  # 6 agent rows into 4 free places: the two oldest are overwritten
+        buf.add(row(v, 1), np.full((1, 1), v), np.full(1, v), row(v, 1), np.zeros(1))
+    assert (buf.size, buf.n_demo, buf.n_agent) == (6, 2, 4)
+    assert sorted(buf.reward[2:].tolist()) == [2.0, 3.0, 4.0, 5.0]
+    assert buf.reward[:2].tolist() == [-1.0, -1.0]
+    rng = np.random.default_rng(0)
+    b = buf.sample(8, rng, demo_fraction=0.25)
+    assert b.obs.dtype == torch.float32 and b.obs.shape == (8, 2) and b.action.shape == (8, 1)
+    assert b.demo.tolist() == [1.0, 1.0] + [0.0] * 6
+    assert torch.all(b.reward[:2] == -1.0) and torch.all(b.reward[2:] >= 2.0)
+    assert torch.all(b.terminated[:2] == 1.0)
+    with pytest.raises(RuntimeError, match="before the agent"):
+        buf.add_demos(row(0, 1), np.zeros((1, 1)), np.zeros(1), row(0, 1), np.zeros(1))
+    with pytest.raises(RuntimeError, match="empty"):
+        ReplayBuffer(3, 2, 1).sample(1, rng)
+
+
+def test_observation_layout_selects_and_pads():
+    full = ObservationLayout({"target": (2,), "dynamic_obstacles": (3, 2), "predicted": (3, 2, 2), "heading": (2,)})
+    small = ObservationLayout({"target": (2,), "dynamic_obstacles": (1, 2), "predicted": (1, 2, 2), "heading": (2,)})
+    flat = np.arange(small.dim, dtype=np.float32)
+    padded = small.pad_to(flat, full)
+    assert padded.shape == (full.dim,)
+    sl = full.slices()
+    assert padded[sl["target"]].tolist() == [0, 1]
+    assert padded[sl["dynamic_obstacles"]].tolist() == [2, 3] + [FAR] * 4
+    assert padded[sl["predicted"]].tolist() == [4, 5, 6, 7] + [FAR] * 8
+    assert padded[sl["heading"]].tolist() == [8, 9]
+    nopred = full.without(("predicted",))
+    assert full.select(padded[None], nopred).shape == (1, nopred.dim)
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ConfigError, match="algo"):
+        make_config("tuned", algo="ppo")
+    with pytest.raises(ConfigError, match="gamma"):
+        make_config("paper", gamma=1.5)
+    with pytest.raises(ConfigError, match="unknown training config field"):
+        make_config("paper", learning_rate=1e-3)
+    with pytest.raises(ConfigError, match="preset"):
+        make_config("fast")
+    assert train_episode_seed(0, 0, 0) >= 1_000_000  # training episodes never use the evaluation seeds
+
+
+# -- runs on real scenes -------------------------------------------------------------------------------------------
+NEAR = {  # an empty deck with a near target: something a short run can learn
+    "static__slotted": 0,
+    "movers__tractors": 0,
+    "movers__aircraft": 0,
+    "agent__start_sites": ["start_5"],
+    "agent__target_sites": ["start_1", "start_2"],  # 18-22 m ahead of the start
+    "agent__min_target_distance": 10.0,
+    "agent__max_target_distance": 30.0,
+}
+
+
+def _short(**fields) -> TrainConfig:  # noqa: ANN003
+    base = dict(
+        scene="deck1",
+        total_steps=120,
+        num_envs=2,
+        hidden=(32, 32),
+        batch_size=32,
+        learning_starts=40,
+        demo_episodes=1,
+        pretrain_updates=5,
+        eval_every=0,
+        eval_episodes=1,
+        log_every=20,
+        checkpoint_every=0,
+        updates_per_step=0.5,
+    )
+    base.update(fields)
+    return make_config("tuned", **base)
+
+
+def _rows(path):  # noqa: ANN001, ANN202
+    with open(path, newline="") as f:
+        return [{k: v for k, v in r.items() if k not in ("wall_s", "sps")} for r in csv.DictReader(f)]
+
+
+def _actor_arrays(run_dir):  # noqa: ANN001, ANN202
+    with np.load(run_dir / "actor.npz", allow_pickle=False) as d:
+        return {k: d[k] for k in d.files if k != "meta"}
+
+
+def test_two_seeded_runs_give_identical_losses_and_actions(tmp_path):
+    a = Trainer(_short(), tmp_path / "a", progress=False)
+    a.train()
+    b = Trainer(_short(), tmp_path / "b", progress=False)
+    b.train()
+    assert _rows(tmp_path / "a" / "progress.csv") == _rows(tmp_path / "b" / "progress.csv")
+    for k, v in _actor_arrays(tmp_path / "a").items():
+        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "b")[k], err_msg=k)
+    np.testing.assert_array_equal(a.buffer.action[: a.buffer.size], b.buffer.action[: b.buffer.size])
+
+
+def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path):
+    whole = Trainer(_short(), tmp_path / "whole", progress=False)
+    whole.train()
+    first = Trainer(_short(), tmp_path / "broken", progress=False)
+    out = first.train(stop_at=70)  # mid-episode in both environments
+    assert out["step"] == 70 and not (tmp_path / "broken" / "actor.npz").exists()
+    assert any(len(s.actions) > 0 for s in first.slots)
+    resumed = Trainer(_short(), tmp_path / "broken", resume=True, progress=False)
+    resumed.train()
+    assert _rows(tmp_path / "whole" / "progress.csv") == _rows(tmp_path / "broken" / "progress.csv")
+    for k, v in _actor_arrays(tmp_path / "whole").items():
+        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "broken")[k], err_msg=k)
+    np.testing.assert_array_equal(whole.buffer.obs[: whole.buffer.size], resumed.buffer.obs[: resumed.buffer.size])
+
+
+def test_bad_checkpoints_give_clear_errors(tmp_path):
+    run = tmp_path / "run"
+    Trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), run, progress=False).train()
+    with pytest.raises(CheckpointError, match="already holds a run"):
+        Trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), run, progress=False)
+    with pytest.raises(CheckpointError, match="another configuration.*hidden"):
+        Trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0, hidden=(16,)), run, resume=True)
+    data = (run / "checkpoint.pt").read_bytes()
+    (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError, match="checkpoint.pt: not a readable checkpoint"):
+        load_checkpoint(run / "checkpoint.pt")
+    (run / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+        Trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), run, resume=True)
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        Trainer(_short(), tmp_path / "empty", resume=True)
+    assert json.loads((run / "config.json").read_text())["hidden"] == [32, 32]  # what was written survives
+
+
+def test_a_short_run_on_an_empty_deck_beats_random(tmp_path):
+    import deck_sim
+    from deck_sim.metrics import summarize
+    from deck_sim.policies import LearnedPolicy, RandomPolicy
+    from deck_sim.rollout import run_episode
+
+    cfg = _short(
+        scene_overrides=NEAR,
+        total_steps=1200,
+        demo_episodes=4,
+        pretrain_updates=300,
+        hidden=(64, 64),
+        batch_size=64,
+        eval_every=0,
+        eval_episodes=10,
+        noise_sigma=0.2,
+    )
+    out = Trainer(cfg, tmp_path / "near", progress=False).train()
+    policy = LearnedPolicy.load(tmp_path / "near" / "actor.npz")
+    env = deck_sim.load("deck1", seed=cfg.eval_seed, episode__predictor="mpc", **NEAR)
+    learned = summarize([run_episode(env, policy, k) for k in range(10)])
+    env.random_state.seed(cfg.eval_seed)
+    rand = summarize([run_episode(env, RandomPolicy(0), k) for k in range(10)])
+    assert learned["goal_rate"] == out["eval"]["goal_rate"]  # the exported file is the evaluated actor
+    assert learned["goal_rate"] >= 0.6 and learned["goal_rate"] >= rand["goal_rate"] + 0.4, (learned, rand)
+    assert learned["mean_reward"] > rand["mean_reward"] + 50.0
+
+
+def test_cli_trains_resumes_and_runs_the_exported_actor(tmp_path, capsys):
+    from training.cli import main
+
+    out = tmp_path / "cli"
+    args = [
+        "train",
+        "--algo",
+        "ddpg",
+        "--scene",
+        "deck1",
+        "--steps",
+        "60",
+        "--out",
+        str(out),
+        "--quiet",
+        "--set",
+        "hidden=[16,16]",
+        "--set",
+        "demo_episodes=0",
+        "--set",
+        "pretrain_updates=0",
+        "--set",
+        "learning_starts=20",
+        "--set",
+        "batch_size=16",
+        "--set",
+        "eval_episodes=1",
+        "--set",
+        "num_envs=1",
+        "--set",
+        "eval_every=0",
+        "--set",
+        "log_every=20",
+    ]
+    assert main(args) == 0
+    assert "held-out success" in capsys.readouterr().out
+    assert json.loads((out / "config.json").read_text())["algo"] == "ddpg"
+    assert main(["train", "--algo", "ddpg", "--out", str(out), "--resume", "--steps", "80", "--quiet"]) == 0
+    assert load_checkpoint(out / "checkpoint.pt")["step"] == 80
+    assert main(args) == 2  # the folder holds a run: refused, nothing overwritten
+    assert "already holds a run" in capsys.readouterr().err
+    assert main(["train", "--algo", "ddpg", "--out", str(out), "--set", "gamma=2"]) == 2
+    assert "gamma" in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "run",
+                "--scene",
+                "deck1",
+                "--policy",
+                str(out / "actor.npz"),
+                "--episodes",
+                "1",
+                "--no-record",
+                "--quiet",
+                "--out",
+                str(tmp_path / "eval"),
+            ]
+        )
+        == 0
+    )
+    assert "predictor none" in capsys.readouterr().out  # DDPG's actor runs without prediction
+
+
+def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
+    import deck_sim
+    from deck_sim.policies import LearnedPolicy, PolicyFileError
+    from training.cli import main
+
+    run = tmp_path / "run"
+    Trainer(
+        _short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10), run, progress=False
+    ).train()
+    policy = LearnedPolicy.load(run / "actor.npz")
+    env = deck_sim.load("deck2", seed=0, episode__predictor="mpc")
+    with pytest.raises(PolicyFileError, match="shape"):
+        policy.act(env.reset().observation)
+    env = deck_sim.load("deck1", seed=0, episode__predictor="none")
+    with pytest.raises(PolicyFileError, match="'predicted'"):
+        policy.act(env.reset().observation)
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(PolicyFileError, match="bad.npz: not a readable actor file"):
+        LearnedPolicy.load(bad)
+    with pytest.raises(PolicyFileError, match="no such actor file"):
+        LearnedPolicy.load(tmp_path / "missing.npz")
+    np.savez(bad, w0=np.zeros((2, 2)))
+    with pytest.raises(PolicyFileError, match="no 'meta' record"):
+        LearnedPolicy.load(bad)
+    assert main(["run", "--scene", "deck1", "--policy", str(bad), "--episodes", "1", "--no-record"]) == 2
+    assert "bad.npz" in capsys.readouterr().err
+
+
+def test_exported_actor_acts_like_the_agent(tmp_path):
+    from deck_sim.policies import LearnedPolicy
+
+    t = Trainer(
+        _short(total_steps=40, demo_episodes=1, pretrain_updates=10, obs_norm=True), tmp_path / "r", progress=False
+    )
+    t.train()
+    policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
+    obs = t.buffer.obs[: t.buffer.size]
+    np.testing.assert_allclose(policy.act_flat(obs), t.agent.act(obs), atol=1e-5)
+
+
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
+    from training.baselines import discrete_actions, load_baseline, train_baseline
+
+    out = tmp_path / algo
+    kwargs = {"learning_starts": 20, "buffer_size": 1000} if algo == "dqn" else {"n_steps": 8}
+    summary = train_baseline(
+        algo, "deck1", 48, 0, out, progress=False, eval_every=0, eval_episodes=1, log_every=16, **kwargs
+    )
+    assert summary["step"] == 48 and summary["eval"]["episodes"] == 1
+    assert len(_rows(out / "progress.csv")) == 3 and len(_rows(out / "eval.csv")) == 1
+    again = train_baseline(
+        algo, "deck1", 64, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1, log_every=16
+    )
+    assert again["step"] == 64
+    policy = load_baseline(out)
+    import deck_sim
+
+    env = deck_sim.load("deck1", seed=3, episode__predictor="none")
+    action = policy.act(env.reset().observation)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    if algo == "dqn":
+        assert any(np.allclose(action, row) for row in discrete_actions())

@@ -1,0 +1,303 @@
+"""The paper's other baselines, DQN and A2C, through stable-baselines3 on the same Gymnasium adapter.
+
+Both observe the current state only (predictor ``none``), as the paper's DQN and A2C do; observations are
+normalised by SB3's ``VecNormalize`` (statistics frozen for evaluation). DQN acts on a discrete set of
+displacements: stand still, or one of ``HEADINGS`` world-frame directions at each of ``SPEEDS`` fractions of the
+reach (17 actions). A2C acts on the continuous (x, y) action like DDPG.
+
+A run folder holds ``progress.csv`` and ``eval.csv`` with the columns of the DDPG runs (where SB3 has them),
+TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own formats, which pickle:
+load only runs you trust). ``--resume`` loads them and goes on for the remaining steps; unlike the DDPG trainer it
+is not bit-exact (SB3 does not restore the environments' episodes).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from tqdm import tqdm
+
+import deck_sim
+from deck_sim.metrics import outcome_of, summarize
+from deck_sim.rollout import run_episode
+from deck_sim.wrappers import DeckSimEnv
+from training.config import train_episode_seed
+
+log = logging.getLogger(__name__)
+
+HEADINGS = 8
+SPEEDS = (0.5, 1.0)
+BASELINES = ("dqn", "a2c")
+
+
+def discrete_actions() -> np.ndarray:
+    """The DQN action table (1 + HEADINGS * len(SPEEDS), 2): displacement requests in [-1, 1]^2."""
+    rows = [np.zeros(2)]
+    for s in SPEEDS:
+        for k in range(HEADINGS):
+            angle = 2.0 * np.pi * k / HEADINGS
+            rows.append(s * np.array([np.cos(angle), np.sin(angle)]))
+    return np.array(rows)
+
+
+class DiscreteDisplacement(gymnasium.ActionWrapper):
+    """Discrete actions for DQN: index -> a row of ``discrete_actions()``."""
+
+    def __init__(self, env: gymnasium.Env) -> None:
+        super().__init__(env)
+        self.table = discrete_actions()
+        self.action_space = gymnasium.spaces.Discrete(len(self.table))
+
+    def action(self, action: Any) -> np.ndarray:
+        return self.table[int(action)].astype(np.float32)
+
+
+class SeededEpisodes(gymnasium.Wrapper):
+    """Resets episode ``k`` with ``train_episode_seed(seed, 0, k)`` (disjoint from evaluation seeds)."""
+
+    def __init__(self, env: gymnasium.Env, seed: int) -> None:
+        super().__init__(env)
+        self.run_seed, self.episode = seed, 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        out = self.env.reset(seed=train_episode_seed(self.run_seed, 0, self.episode), options=options)
+        self.episode += 1
+        return out
+
+
+def _make_env(algo: str, scene: str, seed: int, overrides: dict[str, Any]) -> gymnasium.Env:
+    env: gymnasium.Env = SeededEpisodes(DeckSimEnv(scene, episode__predictor="none", **overrides), seed)
+    return DiscreteDisplacement(env) if algo == "dqn" else env
+
+
+class SB3Policy:
+    """A trained SB3 model with the ``act(observation_dict)`` interface of deck_sim's policies."""
+
+    def __init__(self, model: Any, vecnormalize: Any, keys: tuple[str, ...], discrete: bool) -> None:
+        self.model, self.vecnormalize, self.keys, self.discrete = model, vecnormalize, keys, discrete
+        self.table = discrete_actions()
+
+    def reset(self) -> None:
+        """SB3's MLP policies have no memory."""
+
+    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        x = np.concatenate([np.ravel(observation[k]) for k in self.keys]).astype(np.float32)[None]
+        x = self.vecnormalize.normalize_obs(x)
+        action, _ = self.model.predict(x, deterministic=True)
+        if self.discrete:
+            return self.table[int(np.ravel(action)[0])]
+        return np.clip(np.ravel(action), -1.0, 1.0)
+
+
+def _summary_row(step: int, wall: float, summary: dict[str, float]) -> dict[str, Any]:
+    return {
+        "step": step,
+        "wall_s": round(wall, 2),
+        "episodes": int(summary["episodes"]),
+        "success": summary["goal_rate"],
+        "collision": summary["collision_rate"],
+        "timeout": summary["timeout_rate"],
+        "reward": summary["mean_reward"],
+        "path_ratio": summary["path_ratio"],
+        "turning_deg": summary["turning_angle_deg"],
+    }
+
+
+def train_baseline(
+    algo: str,
+    scene: str,
+    steps: int | None,
+    seed: int,
+    out: str | Path,
+    resume: bool = False,
+    progress: bool = True,
+    eval_every: int = 10_000,
+    eval_episodes: int = 20,
+    eval_seed: int = 500,
+    log_every: int = 1_000,
+    scene_overrides: dict[str, Any] | None = None,
+    **sb3_kwargs: Any,
+) -> dict[str, Any]:
+    """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps (default 50,000) in ``out``.
+
+    ``sb3_kwargs`` go to the SB3 constructor (e.g. ``learning_rate``). Returns the last held-out evaluation and
+    the run's counters, in the shape ``Trainer.train`` returns.
+    """
+    from stable_baselines3 import A2C, DQN
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, CheckpointError
+
+    if algo not in BASELINES:
+        raise ValueError(f"unknown baseline {algo!r}; expected one of {', '.join(BASELINES)}")
+    steps = 50_000 if steps is None else int(steps)
+    out = Path(out)
+    overrides = dict(scene_overrides or {})
+    venv = DummyVecEnv([lambda: _make_env(algo, scene, seed, overrides)])
+    keys = venv.envs[0].unwrapped.observation_keys
+    model_path, norm_path = out / "model.zip", out / "vecnormalize.pkl"
+    cls = DQN if algo == "dqn" else A2C
+    done_steps = 0
+    if resume:
+        if not model_path.exists() or not norm_path.exists():
+            raise CheckpointError(f"{out}: no model.zip and vecnormalize.pkl to resume from")
+        try:
+            venv = VecNormalize.load(str(norm_path), venv)
+            model = cls.load(str(model_path), env=venv)
+        except Exception as err:  # SB3 raises many types for a damaged zip or pickle
+            raise CheckpointError(f"{out}: cannot load the saved model ({err})") from err
+        done_steps = int(model.num_timesteps)
+    else:
+        if model_path.exists():
+            raise CheckpointError(f"{out} already holds a run (model.zip); resume it with --resume or choose another")
+        out.mkdir(parents=True, exist_ok=True)
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=10.0)
+        defaults: dict[str, Any] = (
+            {
+                "learning_starts": 2_000,
+                "buffer_size": 300_000,
+                "exploration_fraction": 0.3,
+                "target_update_interval": 2_000,
+            }
+            if algo == "dqn"
+            else {"n_steps": 16}
+        )
+        model = cls(
+            "MlpPolicy",
+            venv,
+            seed=seed,
+            verbose=0,
+            tensorboard_log=str(out / "tb"),
+            policy_kwargs={"net_arch": [256, 256]},
+            **{**defaults, **sb3_kwargs},
+        )
+        for name, fields in (("progress.csv", PROGRESS_FIELDS), ("eval.csv", EVAL_FIELDS)):
+            with open(out / name, "w", newline="") as f:
+                csv.DictWriter(f, fieldnames=fields).writeheader()
+        (out / "config.json").write_text(
+            __import__("json").dumps(
+                {
+                    "algo": algo,
+                    "scene": scene,
+                    "seed": seed,
+                    "steps": steps,
+                    "sb3": sb3_kwargs,
+                    "scene_overrides": overrides,
+                    "predictor": "none",
+                },
+                indent=2,
+                sort_keys=True,
+            )
+        )
+    eval_env = deck_sim.load(scene, seed=eval_seed, **{**overrides, "episode__predictor": "none"})
+
+    def evaluate(step: int, wall: float) -> dict[str, float]:
+        venv.training = False
+        eval_env.random_state.seed(eval_seed)
+        policy = SB3Policy(model, venv, keys, algo == "dqn")
+        summary = summarize([run_episode(eval_env, policy, k) for k in range(eval_episodes)])
+        venv.training = True
+        with open(out / "eval.csv", "a", newline="") as f:
+            csv.DictWriter(f, fieldnames=EVAL_FIELDS).writerow(_summary_row(step, wall, summary))
+        return summary
+
+    class Logger(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.recent: deque[tuple[str, float]] = deque(maxlen=50)
+            self.ret = 0.0
+            self.t0 = time.perf_counter()
+            self.t_log, self.n_log = self.t0, done_steps
+            self.bar = tqdm(total=steps, initial=done_steps, desc=f"{algo} {scene}", unit="step", disable=not progress)
+            self.last_eval: dict[str, float] = {}
+
+        def _on_step(self) -> bool:
+            self.ret += float(self.locals["rewards"][0])
+            if self.locals["dones"][0]:
+                info = self.locals["infos"][0]
+                truncated = bool(info.get("TimeLimit.truncated", False)) or (
+                    not info["reached_goal"]
+                    and not info["collision"]
+                    and not info["left_surface"]
+                    and not info["diverged"]
+                )
+                self.recent.append((outcome_of(info, truncated), self.ret))
+                self.ret = 0.0
+            n = self.num_timesteps
+            self.bar.update(1)
+            if n % log_every == 0:
+                now = time.perf_counter()
+                outcomes = [o for o, _ in self.recent]
+                k = max(len(outcomes), 1)
+                row = {
+                    "step": n,
+                    "episodes": len(outcomes),
+                    "wall_s": round(now - self.t0, 2),
+                    "sps": round((n - self.n_log) / max(now - self.t_log, 1e-9), 1),
+                    "ep_reward": float(np.mean([r for _, r in self.recent])) if self.recent else 0.0,
+                    "success": outcomes.count("goal") / k,
+                    "collision": outcomes.count("collision") / k,
+                    "timeout": outcomes.count("timeout") / k,
+                    "critic_loss": self.logger.name_to_value.get(
+                        "train/loss", self.logger.name_to_value.get("train/value_loss", "")
+                    ),
+                    "actor_loss": self.logger.name_to_value.get("train/policy_loss", ""),
+                }
+                self.t_log, self.n_log = now, n
+                with open(out / "progress.csv", "a", newline="") as f:
+                    csv.DictWriter(f, fieldnames=PROGRESS_FIELDS).writerow(
+                        {k2: row.get(k2, "") for k2 in PROGRESS_FIELDS}
+                    )
+                self.bar.set_postfix(success=f"{row['success']:.0%}", reward=f"{row['ep_reward']:.0f}")
+            if eval_every and n % eval_every == 0:
+                self.last_eval = evaluate(n, time.perf_counter() - self.t0)
+                model.save(str(model_path))
+                venv.save(str(norm_path))
+            return True
+
+    logger = Logger()
+    t0 = time.perf_counter()
+    remaining = max(0, steps - done_steps)
+    model.learn(total_timesteps=remaining, callback=logger, reset_num_timesteps=not resume, tb_log_name=algo)
+    logger.bar.close()
+    model.save(str(model_path))
+    venv.save(str(norm_path))
+    last = logger.last_eval if eval_every and model.num_timesteps % eval_every == 0 else {}
+    if not last:
+        last = evaluate(int(model.num_timesteps), time.perf_counter() - t0)
+    return {
+        "step": int(model.num_timesteps),
+        "wall_s": time.perf_counter() - t0,
+        "episodes": len(logger.recent),
+        "eval": last,
+        "stopped": False,
+    }
+
+
+def load_baseline(run_dir: str | Path) -> SB3Policy:
+    """The policy of a DQN or A2C run folder (``model.zip`` and ``vecnormalize.pkl``)."""
+    import json
+
+    from stable_baselines3 import A2C, DQN
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    run_dir = Path(run_dir)
+    cfg = json.loads((run_dir / "config.json").read_text())
+    algo = cfg["algo"]
+    venv = DummyVecEnv([lambda: _make_env(algo, cfg["scene"], cfg["seed"], cfg.get("scene_overrides", {}))])
+    keys = venv.envs[0].unwrapped.observation_keys
+    norm = VecNormalize.load(str(run_dir / "vecnormalize.pkl"), venv)
+    norm.training = False
+    model = (DQN if algo == "dqn" else A2C).load(str(run_dir / "model.zip"))
+    return SB3Policy(model, norm, keys, algo == "dqn")
+
+
+__all__ = ["BASELINES", "SB3Policy", "discrete_actions", "load_baseline", "train_baseline"]

@@ -1,0 +1,269 @@
+"""Every hyperparameter of a DDPG / MDDPG run in one dataclass, a docstring per field (cleanrl's ``Args``).
+
+The run writes its ``TrainConfig`` out as ``config.json`` beside its logs and checkpoints. Two presets name the
+recipes compared in ``benchmarks/learning.py``: ``paper`` (plain DDPG as the paper describes it: one environment,
+one update per step, Gaussian noise, no demonstrations, no normalisation) and ``tuned`` (the switches that were
+measured to pay on the physical deck; see the README's learning section).
+
+Seeds: training episode ``k`` of environment ``i`` in a run seeded ``s`` is reset with
+``train_episode_seed(s, i, k)``, demonstration episode ``k`` with ``demo_episode_seed(s, k)``; both lie at or above
+``TRAIN_SEED_BASE`` (10^6). Evaluation plays consecutive episodes of one environment seeded below it
+(``eval_seed``, default 500; the README's held-out figure uses ``deck-sim run --seed 1000``), so no evaluation
+episode is a training episode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+TRAIN_SEED_BASE = 1_000_000
+ALGOS = ("mddpg", "ddpg")
+NOISES = ("gaussian", "ou")
+
+
+class ConfigError(ValueError):
+    """A training configuration field holds a value it cannot take."""
+
+
+def train_episode_seed(seed: int, env_index: int, episode: int) -> int:
+    """The reset seed of training episode ``episode`` of environment ``env_index`` in a run seeded ``seed``."""
+    if not (0 <= env_index < 9 and 0 <= episode < 100_000):
+        raise ConfigError(f"training episode seeds cover 9 environments of 100000 episodes, got {env_index}, {episode}")
+    return TRAIN_SEED_BASE + seed * 1_000_000 + env_index * 100_000 + episode
+
+
+def demo_episode_seed(seed: int, episode: int) -> int:
+    """The reset seed of demonstration episode ``episode`` in a run seeded ``seed`` (disjoint from training)."""
+    if not 0 <= episode < 100_000:
+        raise ConfigError(f"demonstration episode seeds cover 100000 episodes, got {episode}")
+    return TRAIN_SEED_BASE + seed * 1_000_000 + 900_000 + episode
+
+
+@dataclass
+class CurriculumStage:
+    """One stage of the curriculum: until ``until`` (a fraction of ``total_steps``), episodes use these limits."""
+
+    until: float
+    """Fraction of the run's environment steps at which this stage ends (0, 1]."""
+    max_target_distance: float
+    """Largest start-to-target distance sampled in this stage, metres (the scene's ``agent.max_target_distance``)."""
+    movers: int
+    """How many of the scene's movers take part; the others are left out of the episode (their observation rows
+    are filled with a far-away placeholder, so the observation keeps its size)."""
+
+
+@dataclass
+class TrainConfig:
+    """Hyperparameters of one DDPG (``predictor = "none"``) or MDDPG (MPC prediction in the observation) run."""
+
+    algo: str = "mddpg"
+    """``mddpg`` (the paper's method: observations carry the MPC prediction) or ``ddpg`` (current positions only)."""
+    scene: str = "deck1"
+    """Scene name or TOML path."""
+    scene_overrides: dict[str, Any] = field(default_factory=dict)
+    """Scene fields as ``<section>__<field>`` (``deck_sim.load``'s overrides), for training and evaluation alike."""
+    seed: int = 0
+    """Seeds networks, noise, replay sampling and the training episodes."""
+    total_steps: int = 50_000
+    """Environment steps (decisions, 0.5 s each on the deck) to collect, summed over all environments."""
+
+    # -- networks and optimisation (paper eq. 3-6) ------------------------------------------------------------
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layer widths of the actor and of each critic (ReLU)."""
+    actor_lr: float = 3e-4
+    """Adam learning rate of the actor."""
+    critic_lr: float = 3e-4
+    """Adam learning rate of the critic(s)."""
+    gamma: float = 0.99
+    """Discount factor of the TD target y = r + gamma * Q'(s', mu'(s')) (eq. 3)."""
+    tau: float = 0.005
+    """Soft target update rate theta' <- tau theta + (1 - tau) theta' (eq. 6)."""
+    batch_size: int = 256
+    """Transitions per update."""
+    buffer_size: int = 300_000
+    """Replay capacity in transitions (demonstrations included; they are never overwritten)."""
+    learning_starts: int = 2_000
+    """Environment steps of exploration before the first update (uniform random actions until then)."""
+    reward_scale: float = 1.0
+    """Rewards are multiplied by this before learning (the logs report the unscaled episode reward)."""
+    grad_clip: float = 0.0
+    """Clip gradient norms of actor and critic to this value (0: no clipping)."""
+
+    # -- exploration ------------------------------------------------------------------------------------------
+    noise: str = "gaussian"
+    """Exploration noise: ``gaussian`` (independent per step) or ``ou`` (Ornstein-Uhlenbeck, temporally correlated)."""
+    noise_sigma: float = 0.3
+    """Noise scale at the start of training, in action units ([-1, 1])."""
+    noise_sigma_final: float = 0.05
+    """Noise scale reached at the end of ``noise_decay`` (linear decay)."""
+    noise_decay: float = 0.5
+    """Fraction of ``total_steps`` over which the noise decays to ``noise_sigma_final``."""
+    ou_theta: float = 0.15
+    """Mean-reversion rate of the OU noise per step."""
+
+    # -- the switches measured against plain DDPG ------------------------------------------------------------
+    obs_norm: bool = False
+    """Running mean/variance normalisation of observations (statistics from collected data, clipped to +-10)."""
+    twin_critics: bool = False
+    """TD3: two critics, the TD target takes their minimum."""
+    target_noise: float = 0.0
+    """TD3 target policy smoothing: std of the clipped Gaussian noise added to mu'(s') (0: off)."""
+    target_noise_clip: float = 0.5
+    """Clip of the target smoothing noise."""
+    policy_delay: int = 1
+    """TD3 delayed actor: update the actor and the targets once every this many critic updates."""
+    curriculum: tuple[CurriculumStage, ...] = ()
+    """Stages over target distance and mover count (empty: the scene as it is from the first step)."""
+    num_envs: int = 1
+    """Environments stepped together; the actor acts on all of them in one batched forward pass."""
+    updates_per_step: float = 1.0
+    """Gradient updates per collected environment step (update-to-data ratio; below 1 updates less often)."""
+    demo_episodes: int = 0
+    """Episodes of the full-knowledge scripted planner placed in the replay buffer before training (DDPGfD)."""
+    demo_noise: float = 0.0
+    """Std of Gaussian noise added to the planner's actions while demonstrating (DART, Laskey et al. 2017): the
+    planner then shows how it recovers from the agent's kind of errors; the clean action is the cloning target."""
+    expert_relabel: bool = False
+    """Label the agent's own transitions with the scripted planner's action in the same state (DAgger, Ross et al.
+    2011, as an auxiliary cloning target): the planner is queried during training only; the actor still acts
+    from the observation alone."""
+    demo_fraction: float = 0.25
+    """Share of every batch drawn from the demonstrations (when there are any)."""
+    bc_weight: float = 0.0
+    """Weight of the behaviour-cloning term on demonstration samples in the actor loss (0: off)."""
+    q_filter: bool = True
+    """Clone a demonstrated action only where the critic rates it above the actor's own (Nair et al. 2018)."""
+    bc_normalise_q: bool = True
+    """With a cloning term, divide the Q term of the actor loss by the batch's mean |Q| (TD3+BC, Fujimoto and Gu
+    2021), so that ``bc_weight`` weighs cloning against a Q term of size one whatever the reward scale."""
+    pretrain_updates: int = 0
+    """Updates on the demonstrations alone before any interaction (DQfD's pre-training phase): the critic learns
+    their TD targets, the actor clones them (no Q term: a critic that has seen only demonstrations cannot yet
+    judge other actions)."""
+
+    # -- evaluation, logging, checkpoints ----------------------------------------------------------------------
+    eval_every: int = 10_000
+    """Evaluate the greedy actor every this many environment steps (0: only at the end)."""
+    eval_episodes: int = 20
+    """Episodes per evaluation."""
+    eval_seed: int = 500
+    """Seed of the evaluation environment (consecutive episodes; held out: below ``TRAIN_SEED_BASE``)."""
+    checkpoint_every: int = 10_000
+    """Write a resumable checkpoint every this many environment steps (0: only at the end)."""
+    log_every: int = 1_000
+    """Write a CSV / TensorBoard row of training statistics every this many environment steps."""
+    torch_threads: int = 1
+    """Threads torch may use (1 keeps runs bit-identical and leaves the other core to the physics)."""
+
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Free-form notes stored with the run (e.g. the preset's name); not read by the trainer."""
+
+    @property
+    def predictor(self) -> str:
+        """The predictor filling the observation: ``mpc`` for MDDPG, ``none`` for DDPG."""
+        return "mpc" if self.algo == "mddpg" else "none"
+
+    def validate(self) -> TrainConfig:
+        """Raise ``ConfigError`` naming the first field with an impossible value; return self."""
+        if self.algo not in ALGOS:
+            raise ConfigError(f"algo: expected one of {', '.join(ALGOS)}, got {self.algo!r}")
+        if self.noise not in NOISES:
+            raise ConfigError(f"noise: expected one of {', '.join(NOISES)}, got {self.noise!r}")
+        if not 0 <= self.seed < 4_000:
+            raise ConfigError(f"seed: must lie in [0, 4000) (episode seeds must fit in 32 bits), got {self.seed!r}")
+        if self.num_envs > 9:
+            raise ConfigError(f"num_envs: at most 9, got {self.num_envs!r}")
+        positive = ("total_steps", "batch_size", "buffer_size", "num_envs", "policy_delay", "eval_episodes")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
+        for name in ("gamma", "tau", "demo_fraction", "noise_decay"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
+        if self.demo_noise < 0:
+            raise ConfigError(f"demo_noise: must be >= 0, got {self.demo_noise!r}")
+        for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale"):
+            if not getattr(self, name) > 0.0:
+                raise ConfigError(f"{name}: must be positive, got {getattr(self, name)!r}")
+        if not self.hidden or any(int(h) < 1 for h in self.hidden):
+            raise ConfigError(f"hidden: expected positive layer widths, got {self.hidden!r}")
+        last = 0.0
+        for i, stage in enumerate(self.curriculum):
+            if not last < stage.until <= 1.0:
+                raise ConfigError(f"curriculum[{i}].until: must increase within (0, 1], got {stage.until!r}")
+            if stage.movers < 0 or stage.max_target_distance <= 0:
+                raise ConfigError(f"curriculum[{i}]: movers >= 0 and max_target_distance > 0, got {stage!r}")
+            last = stage.until
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-serialisable copy."""
+        d = dataclasses.asdict(self)
+        d["hidden"] = list(self.hidden)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
+        """The inverse of ``to_dict``; unknown fields raise ``ConfigError``."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
+        d = dict(d)
+        if "hidden" in d:
+            d["hidden"] = tuple(int(h) for h in d["hidden"])
+        if "curriculum" in d:
+            d["curriculum"] = tuple(
+                s if isinstance(s, CurriculumStage) else CurriculumStage(**s) for s in d["curriculum"]
+            )
+        return cls(**d).validate()
+
+    def save(self, path: str | Path) -> None:
+        """Write the config as JSON."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> TrainConfig:
+        """Read a config written by ``save``."""
+        try:
+            d = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise ConfigError(f"{path}: cannot read a training config: {err}") from err
+        return cls.from_dict(d)
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # the paper's recipe: plain DDPG, one environment, one update per step, Gaussian noise
+    "paper": {},
+    # the switches that paid on the physical deck (benchmarks/learning.py)
+    "tuned": {
+        "obs_norm": True,
+        "twin_critics": True,
+        "target_noise": 0.2,
+        "policy_delay": 2,
+        "num_envs": 4,
+        "updates_per_step": 0.5,
+        "demo_episodes": 100,
+        "bc_weight": 5.0,
+        "q_filter": False,
+        "expert_relabel": True,
+        "pretrain_updates": 3_000,
+        "reward_scale": 0.1,
+        "noise_sigma": 0.2,
+    },
+}
+
+
+def make_config(preset: str = "tuned", **fields: Any) -> TrainConfig:
+    """A validated ``TrainConfig`` from a preset (``paper`` or ``tuned``) with ``fields`` overriding it."""
+    if preset not in PRESETS:
+        raise ConfigError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
+    values = {**PRESETS[preset], **fields}
+    values.setdefault("extra", {})
+    values["extra"] = {**values["extra"], "preset": preset}
+    return TrainConfig.from_dict(values)

@@ -1,0 +1,173 @@
+"""DDPG (paper eq. 3-6) with TD3's fixes and DDPGfD's demonstration loss as switches of one agent.
+
+- eq. 3: y = r if terminated else r + gamma * Q'(s', mu'(s'))  (TD3: the minimum of two target critics, and
+  clipped noise on mu'(s'));
+- eq. 4: critic loss, mean squared error to y (summed over the twin critics);
+- eq. 5: actor loss -mean Q(s, mu(s)), plus ``bc_weight`` times the squared error to the demonstrator's action on
+  the samples that have one (demonstrations, and the agent's own states relabelled by the planner online), where
+  the critic prefers the demonstrator's action (the Q-filter);
+- eq. 6: theta' <- tau theta + (1 - tau) theta' for the actor and the critics (``soft_update``).
+With every switch off this is the paper's DDPG.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch
+from torch import nn
+
+from training.buffers import Batch
+from training.config import TrainConfig
+from training.networks import Actor, Critic, RunningNorm
+
+
+@torch.no_grad()
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """theta' <- tau theta + (1 - tau) theta' for every parameter (eq. 6); buffers are copied."""
+    for t, s in zip(target.parameters(), source.parameters(), strict=True):
+        t.mul_(1.0 - tau).add_(s, alpha=tau)
+    for t, s in zip(target.buffers(), source.buffers(), strict=True):
+        t.copy_(s)
+
+
+class DDPGAgent:
+    """Actor, critic(s), their targets, optimisers and the observation normaliser.
+
+    Args:
+        obs_dim, act_dim: sizes of the flat observation and of the action.
+        config: the run's hyperparameters (networks, learning rates, gamma, tau and the switches).
+        generator: the torch generator for target smoothing noise (seeded by the trainer).
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, config: TrainConfig, generator: torch.Generator | None = None):
+        self.config = config
+        self.obs_dim, self.act_dim = obs_dim, act_dim
+        hidden = tuple(config.hidden)
+        self.norm = RunningNorm(obs_dim, enabled=config.obs_norm)
+        self.actor = Actor(obs_dim, act_dim, hidden)
+        self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1)
+        self.actor_target = copy.deepcopy(self.actor)
+        self.critic_target = copy.deepcopy(self.critic)
+        for p in (*self.actor_target.parameters(), *self.critic_target.parameters()):
+            p.requires_grad_(False)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.generator = generator if generator is not None else torch.Generator().manual_seed(0)
+        self.updates = 0
+
+    # -- acting ---------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Greedy actions (n, act_dim) in [-1, 1] for raw observations (n, obs_dim), one batched forward pass."""
+        x = torch.as_tensor(np.asarray(obs, dtype=np.float32))
+        return self.actor(self.norm(x)).numpy().astype(np.float64)
+
+    # -- learning -------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def td_target(self, batch: Batch) -> torch.Tensor:
+        """y of eq. 3 for every transition of ``batch`` (B,)."""
+        cfg = self.config
+        next_obs = self.norm(batch.next_obs)
+        next_action = self.actor_target(next_obs)
+        if cfg.target_noise > 0.0:
+            eps = torch.randn(next_action.shape, generator=self.generator) * cfg.target_noise
+            next_action = (next_action + eps.clamp(-cfg.target_noise_clip, cfg.target_noise_clip)).clamp(-1.0, 1.0)
+        q_next = torch.stack(self.critic_target(next_obs, next_action)).min(dim=0).values
+        return cfg.reward_scale * batch.reward + cfg.gamma * (1.0 - batch.terminated) * q_next
+
+    def update(self, batch: Batch, clone_only: bool = False) -> dict[str, float]:
+        """One critic update, and (every ``policy_delay`` updates) one actor update and soft target updates.
+
+        ``clone_only`` (pre-training on demonstrations) updates the actor by the cloning term alone.
+
+        Returns the update's statistics: ``critic_loss``, ``q`` (mean Q of the batch's actions) and, when the actor
+        was updated, ``actor_loss``, ``bc_loss`` and ``bc_share`` (the share of demonstration samples cloned).
+        """
+        cfg = self.config
+        y = self.td_target(batch)
+        obs = self.norm(batch.obs)
+        qs = self.critic(obs, batch.action)
+        critic_loss = sum(torch.mean((q - y) ** 2) for q in qs)
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        if cfg.grad_clip > 0:
+            nn.utils.clip_grad_norm_(self.critic.parameters(), cfg.grad_clip)
+        self.critic_opt.step()
+        self.updates += 1
+        stats = {"critic_loss": critic_loss.item(), "q": qs[0].detach().mean().item()}
+        if self.updates % cfg.policy_delay == 0:
+            stats.update(self._update_actor(obs, batch, clone_only))
+            soft_update(self.actor_target, self.actor, cfg.tau)
+            soft_update(self.critic_target, self.critic, cfg.tau)
+        return stats
+
+    def _update_actor(self, obs: torch.Tensor, batch: Batch, clone_only: bool = False) -> dict[str, float]:
+        cfg = self.config
+        action = self.actor(obs)
+        q_pi = self.critic(obs, action)[0]
+        actor_loss = -q_pi.mean()
+        bc_loss = torch.zeros(())
+        share = 0.0
+        n_labelled = float(batch.labelled.sum())
+        cloning = (cfg.bc_weight > 0.0 or clone_only) and n_labelled > 0
+        if cloning and cfg.bc_normalise_q:
+            actor_loss = actor_loss / q_pi.abs().mean().detach().clamp_min(1e-6)
+        if cloning:
+            mask = batch.labelled
+            if cfg.q_filter and not clone_only:
+                with torch.no_grad():
+                    q_expert = self.critic(obs, batch.expert_action)[0]
+                    mask = mask * (q_expert > q_pi.detach()).float()
+            err = ((action - batch.expert_action) ** 2).sum(-1)
+            bc_loss = (err * mask).sum() / n_labelled
+            share = float(mask.sum()) / n_labelled
+        loss = bc_loss if clone_only else actor_loss + cfg.bc_weight * bc_loss
+        self.actor_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.grad_clip > 0:
+            nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.grad_clip)
+        self.actor_opt.step()
+        return {"actor_loss": actor_loss.item(), "bc_loss": bc_loss.item(), "bc_share": share}
+
+    # -- state ----------------------------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, object]:
+        """Every network, optimiser and counter (tensors and ints only)."""
+        return {
+            "norm": self.norm.state_dict(),
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "actor_target": self.actor_target.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "generator": self.generator.get_state(),
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict[str, object]) -> None:
+        """Restore what ``state_dict`` returned; a network of another shape raises ``ValueError``."""
+        try:
+            for name in ("norm", "actor", "critic", "actor_target", "critic_target"):
+                getattr(self, name).load_state_dict(state[name])
+            self.actor_opt.load_state_dict(state["actor_opt"])
+            self.critic_opt.load_state_dict(state["critic_opt"])
+        except (RuntimeError, KeyError) as err:
+            raise ValueError(f"the checkpoint's networks do not match this configuration: {err}") from err
+        self.generator.set_state(state["generator"])
+        self.updates = int(state["updates"])
+
+    def export_actor(self) -> dict[str, np.ndarray]:
+        """The greedy policy as plain arrays: normaliser statistics and each layer's weight and bias (float32)."""
+        out: dict[str, np.ndarray] = {
+            "norm_enabled": np.array(self.norm.enabled),
+            "norm_mean": self.norm.mean.numpy().astype(np.float32),
+            "norm_std": torch.sqrt(self.norm.var + self.norm.eps).numpy().astype(np.float32),
+            "norm_clip": np.array(self.norm.clip, dtype=np.float32),
+        }
+        linear = [m for m in self.actor.net if isinstance(m, nn.Linear)]
+        for i, layer in enumerate(linear):
+            out[f"w{i}"] = layer.weight.detach().numpy().astype(np.float32)
+            out[f"b{i}"] = layer.bias.detach().numpy().astype(np.float32)
+        return out

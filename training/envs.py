@@ -1,0 +1,174 @@
+"""The environments a training run steps: the Gymnasium adapter of a scene, the observation layout, the curriculum's
+reduced scenes, and the scripted planner's demonstrations.
+
+A curriculum stage may leave movers out of the episode; its observation is then padded to the full scene's layout
+with ``FAR`` (a relative position 1 km away, far outside every influence radius), so one network serves every
+stage.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from deck_sim.policies import ScriptedPolicy
+from deck_sim.scenes import load_scene
+from deck_sim.wrappers import DeckSimEnv
+from training.config import CurriculumStage, demo_episode_seed
+
+log = logging.getLogger(__name__)
+
+FAR = 1000.0
+"""Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
+MOVER_KEYS = ("dynamic_obstacles", "predicted")
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Key order and shapes of a scene's flat observation (the Gymnasium adapter's order)."""
+
+    shapes: dict[str, tuple[int, ...]]
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return tuple(self.shapes)
+
+    @property
+    def dim(self) -> int:
+        return int(sum(np.prod(s) for s in self.shapes.values()))
+
+    def slices(self) -> dict[str, slice]:
+        """Where each key lies in the flat vector."""
+        out, start = {}, 0
+        for k, s in self.shapes.items():
+            n = int(np.prod(s))
+            out[k] = slice(start, start + n)
+            start += n
+        return out
+
+    def without(self, drop: tuple[str, ...]) -> ObservationLayout:
+        """This layout with the keys ``drop`` removed."""
+        return ObservationLayout({k: s for k, s in self.shapes.items() if k not in drop})
+
+    def select(self, flat: np.ndarray, target: ObservationLayout) -> np.ndarray:
+        """The part of flat observations (..., self.dim) that ``target`` (a subset of keys) holds."""
+        sl = self.slices()
+        return np.concatenate([flat[..., sl[k]] for k in target.keys], axis=-1)
+
+    def pad_to(self, flat: np.ndarray, full: ObservationLayout) -> np.ndarray:
+        """Flat observations of a scene with fewer movers, padded (nearest-first rows kept) to ``full``."""
+        sl = self.slices()
+        parts = []
+        for k, shape in full.shapes.items():
+            v = flat[..., sl[k]].reshape(*flat.shape[:-1], *self.shapes[k])
+            if k in MOVER_KEYS and self.shapes[k][0] < shape[0]:
+                pad = np.full((*flat.shape[:-1], shape[0] - self.shapes[k][0], *shape[1:]), FAR, dtype=flat.dtype)
+                v = np.concatenate([v, pad], axis=flat.ndim - 1)
+            parts.append(v.reshape(*flat.shape[:-1], -1))
+        return np.concatenate(parts, axis=-1)
+
+
+def env_layout(env: DeckSimEnv) -> ObservationLayout:
+    """The layout of ``env``'s flat observations."""
+    return ObservationLayout({k: tuple(v) for k, v in env.composer_env.task.observation_shapes.items()})
+
+
+def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]:
+    """Scene overrides for a curriculum stage: the target distance cap and the first ``stage.movers`` movers
+    (tractors, then taxiing aircraft, then pedestrians)."""
+    if stage is None:
+        return {}
+    m = load_scene(scene).movers
+    agent = load_scene(scene).agent
+    left = int(stage.movers)
+    counts = {}
+    for kind in ("tractors", "aircraft", "pedestrians"):
+        counts[kind] = min(getattr(m, kind), left)
+        left -= counts[kind]
+    total = sum(counts.values())
+    return {
+        "agent__max_target_distance": float(max(stage.max_target_distance, agent.min_target_distance + 1.0)),
+        **{f"movers__{k}": v for k, v in counts.items()},
+        "movers__spawn_near_agent": min(m.spawn_near_agent, total),
+        "movers__spawn_random": min(m.spawn_random, max(0, total - min(m.spawn_near_agent, total))),
+    }
+
+
+def make_env(scene: str, predictor: str, **overrides: Any) -> DeckSimEnv:
+    """The Gymnasium adapter of ``scene`` with ``predictor`` filling the observation's predicted part."""
+    return DeckSimEnv(scene, episode__predictor=predictor, **overrides)
+
+
+@dataclass
+class Demonstrations:
+    """Transitions of the scripted planner, flat float32 observations in the training layout."""
+
+    obs: np.ndarray
+    action: np.ndarray
+    """What was done (the planner's action plus the injected noise)."""
+    expert_action: np.ndarray
+    """What the planner asked for."""
+    reward: np.ndarray
+    next_obs: np.ndarray
+    terminated: np.ndarray
+    episodes: int
+    successes: int
+
+    def __len__(self) -> int:
+        return len(self.obs)
+
+
+def collect_demonstrations(
+    scene: str,
+    episodes: int,
+    seed: int,
+    layout: ObservationLayout,
+    progress: bool = True,
+    noise: float = 0.0,
+    **overrides: Any,
+) -> Demonstrations:
+    """Play ``episodes`` episodes of the full-knowledge scripted planner and keep their transitions.
+
+    The planner plans around the MPC predictor's forecasts (``predictor = "mpc"``), the same forecasts MDDPG
+    observes; for an agent without prediction (``layout`` lacks ``predicted``) that part of the observation is
+    dropped, so DDPG and MDDPG learn from the same demonstrated episodes. Episode ``k`` is reset with
+    ``demo_episode_seed(seed, k)`` (disjoint from training and evaluation seeds); ``overrides`` are scene fields.
+    With ``noise`` > 0 the executed action is the planner's plus N(0, noise^2) per component (DART), drawn from a
+    generator seeded by ``seed``; the planner's own action is kept as the cloning target.
+    """
+    env = make_env(scene, "mpc", **overrides)
+    full = env_layout(env)
+    policy = ScriptedPolicy(env.composer_env)
+    rows: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("obs", "action", "expert_action", "reward", "next_obs", "terminated")
+    }
+    rng = np.random.default_rng([seed, 77])
+    successes = 0
+    bar = tqdm(range(episodes), desc=f"demonstrations {scene}", unit="ep", disable=not progress, leave=False)
+    for k in bar:
+        obs, _ = env.reset(seed=demo_episode_seed(seed, k))
+        policy.reset()
+        done = False
+        while not done:
+            expert = np.clip(policy.act({}), -1.0, 1.0)  # the planner reads the task's full state
+            action = np.clip(expert + noise * rng.standard_normal(2), -1.0, 1.0) if noise > 0 else expert
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            rows["obs"].append(obs)
+            rows["action"].append(action.astype(np.float32))
+            rows["expert_action"].append(expert.astype(np.float32))
+            rows["reward"].append(np.float32(reward))
+            rows["next_obs"].append(next_obs)
+            rows["terminated"].append(np.float32(terminated))
+            obs, done = next_obs, terminated or truncated
+        successes += bool(info["reached_goal"])
+        bar.set_postfix(success=f"{100 * successes / (k + 1):.0f}%")
+    env.close()
+    stack = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items()}
+    for k in ("obs", "next_obs"):
+        stack[k] = full.select(stack[k], layout) if layout.keys != full.keys else stack[k]
+    log.info("demonstrations: %d episodes, %d transitions, %d successes", episodes, len(stack["obs"]), successes)
+    return Demonstrations(**stack, episodes=episodes, successes=successes)
