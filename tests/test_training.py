@@ -415,3 +415,25 @@ def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
     if algo == "dqn":
         assert any(np.allclose(action, row) for row in discrete_actions())
+
+
+def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
+    from training.config import CurriculumStage
+
+    stages = (CurriculumStage(until=0.5, max_target_distance=60.0, movers=0),)
+    t = Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0, curriculum=stages), tmp_path / "c",
+                progress=False)
+    seen = []
+    for stop in (10, 40, 60):  # the first episodes start in stage 0; episodes started past half the run do not
+        t.train(stop_at=stop)
+        seen.append({s.stage for s in t.slots})
+        for s in t.slots:
+            assert s.obs.shape == (t.obs_dim,)
+            movers = len(s.env.composer_env.task.movers)
+            assert movers == (0 if s.stage == 0 else 5)
+    assert seen[0] == {0}
+    rows = t.buffer.obs[: t.buffer.size]
+    dyn = t.layout.slices()["dynamic_obstacles"]
+    assert np.all(rows[:10, dyn] == FAR)  # stage 0: every mover row is the far placeholder
+    config = t.config.to_dict()
+    assert TrainConfig.from_dict(json.loads(json.dumps(config))).curriculum == stages  # saved and read back

@@ -78,24 +78,40 @@ def env_layout(env: DeckSimEnv) -> ObservationLayout:
 
 
 def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]:
-    """Scene overrides for a curriculum stage: the target distance cap and the first ``stage.movers`` movers
-    (tractors, then taxiing aircraft, then pedestrians)."""
+    """Scene overrides for a curriculum stage.
+
+    The first ``stage.movers`` movers take part (tractors, then taxiing aircraft, then pedestrians). Targets lie at
+    most ``stage.max_target_distance`` from the start: where the scene's own target sites are farther, the stage
+    also draws targets from its other named sites (the movers' spots and the start sites), so that short trips
+    exist; the final stage (``None``) is the scene as it is.
+    """
     if stage is None:
         return {}
-    m = load_scene(scene).movers
-    agent = load_scene(scene).agent
+    spec = load_scene(scene)
+    m, agent = spec.movers, spec.agent
     left = int(stage.movers)
     counts = {}
     for kind in ("tractors", "aircraft", "pedestrians"):
         counts[kind] = min(getattr(m, kind), left)
         left -= counts[kind]
     total = sum(counts.values())
-    return {
-        "agent__max_target_distance": float(max(stage.max_target_distance, agent.min_target_distance + 1.0)),
+    near = min(m.spawn_near_agent, total)
+    cap = float(stage.max_target_distance)
+    out: dict[str, Any] = {
         **{f"movers__{k}": v for k, v in counts.items()},
-        "movers__spawn_near_agent": min(m.spawn_near_agent, total),
-        "movers__spawn_random": min(m.spawn_random, max(0, total - min(m.spawn_near_agent, total))),
+        "movers__spawn_near_agent": near,
+        "movers__spawn_random": min(m.spawn_random, total - near),
     }
+    if cap < agent.max_target_distance:
+        sites = list(dict.fromkeys([*agent.target_sites, *m.spots, *agent.start_sites]))
+        out.update(
+            {
+                "agent__target_sites": sites,
+                "agent__max_target_distance": cap,
+                "agent__min_target_distance": min(agent.min_target_distance, 0.5 * cap),
+            }
+        )
+    return out
 
 
 def make_env(scene: str, predictor: str, **overrides: Any) -> DeckSimEnv:
