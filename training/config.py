@@ -120,6 +120,8 @@ class TrainConfig:
     """Stages over target distance and mover count (empty: the scene as it is from the first step)."""
     num_envs: int = 1
     """Environments stepped together; the actor acts on all of them in one batched forward pass."""
+    env_worker: bool = False
+    """Step the environments in a worker process while the learner updates (two cores overlap; same results)."""
     updates_per_step: float = 1.0
     """Gradient updates per collected environment step (update-to-data ratio; below 1 updates less often)."""
     demo_episodes: int = 0
@@ -247,6 +249,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "target_noise": 0.2,
         "policy_delay": 2,
         "num_envs": 4,
+        "env_worker": True,
         "updates_per_step": 0.5,
         "demo_episodes": 100,
         "bc_weight": 5.0,

@@ -25,9 +25,13 @@ from training.networks import Actor, Critic, RunningNorm
 
 @torch.no_grad()
 def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
-    """theta' <- tau theta + (1 - tau) theta' for every parameter (eq. 6); buffers are copied."""
-    for t, s in zip(target.parameters(), source.parameters(), strict=True):
-        t.mul_(1.0 - tau).add_(s, alpha=tau)
+    """theta' <- tau theta + (1 - tau) theta' for every parameter (eq. 6), in two fused multi-tensor ops;
+    buffers are copied."""
+    targets, sources = list(target.parameters()), list(source.parameters())
+    if len(targets) != len(sources):
+        raise ValueError(f"target has {len(targets)} parameters, source {len(sources)}")
+    torch._foreach_mul_(targets, 1.0 - tau)
+    torch._foreach_add_(targets, sources, alpha=tau)
     for t, s in zip(target.buffers(), source.buffers(), strict=True):
         t.copy_(s)
 
@@ -52,8 +56,9 @@ class DDPGAgent:
         self.critic_target = copy.deepcopy(self.critic)
         for p in (*self.actor_target.parameters(), *self.critic_target.parameters()):
             p.requires_grad_(False)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
-        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        # fused Adam: one kernel per step for all parameters (about 10 % of an update at 2 x 256 on one core)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.generator = generator if generator is not None else torch.Generator().manual_seed(0)
         self.updates = 0
 
@@ -104,6 +109,17 @@ class DDPGAgent:
         return stats
 
     def _update_actor(self, obs: torch.Tensor, batch: Batch, clone_only: bool = False) -> dict[str, float]:
+        cfg = self.config
+        critic_params = list(self.critic.parameters())
+        for p in critic_params:  # the actor's loss needs dQ/da, not the critic's weight gradients: skip them
+            p.requires_grad_(False)
+        try:
+            return self._actor_step(obs, batch, clone_only)
+        finally:
+            for p in critic_params:
+                p.requires_grad_(True)
+
+    def _actor_step(self, obs: torch.Tensor, batch: Batch, clone_only: bool) -> dict[str, float]:
         cfg = self.config
         action = self.actor(obs)
         q_pi = self.critic(obs, action)[0]

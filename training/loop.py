@@ -35,12 +35,13 @@ from tqdm import tqdm
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize
-from deck_sim.policies import ACTOR_FORMAT, LearnedPolicy, ScriptedPolicy
+from deck_sim.policies import ACTOR_FORMAT, LearnedPolicy
 from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
 from training.config import ConfigError, CurriculumStage, TrainConfig, train_episode_seed
 from training.ddpg import DDPGAgent
 from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
+from training.runners import make_runner
 from training.noise import make_noise
 
 log = logging.getLogger(__name__)
@@ -85,7 +86,6 @@ class _Slot:
     """One environment of the run and where it stands in its episode."""
 
     index: int
-    env: Any = None
     stage: int = -1
     layout: ObservationLayout | None = None
     episode: int = 0
@@ -93,8 +93,6 @@ class _Slot:
     ret: float = 0.0
     length: int = 0
     obs: np.ndarray | None = None
-    expert: Any = None
-    """The scripted planner of this environment (online relabelling), or None."""
 
 
 def _actor_meta(config: TrainConfig, layout: ObservationLayout, step: int) -> dict[str, Any]:
@@ -172,6 +170,7 @@ class Trainer:
         torch.use_deterministic_algorithms(True)
         self.rng = np.random.default_rng(cfg.seed)
         self.slots = [_Slot(i) for i in range(cfg.num_envs)]
+        self.envs = make_runner(cfg.num_envs, cfg.env_worker)
         # the full scene fixes the layout of every observation
         probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)
         self.layout = env_layout(probe)
@@ -222,22 +221,15 @@ class Trainer:
         return slot.layout.pad_to(flat, self.layout).astype(np.float32)
 
     def _start_episode(self, slot: _Slot, stage: int | None = None) -> None:
+        cfg = self.config
         stage = self._stage_index() if stage is None else stage
-        if slot.env is None or slot.stage != stage:
-            if slot.env is not None:
-                slot.env.close()
-            cfg = self.config
-            slot.env = make_env(
-                cfg.scene, cfg.predictor, **{**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
-            )
-            slot.layout = env_layout(slot.env)
+        if slot.stage != stage:
+            overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
+            slot.layout = self.envs.build(slot.index, cfg.scene, cfg.predictor, overrides, cfg.expert_relabel)
             slot.stage = stage
-            slot.expert = ScriptedPolicy(slot.env.composer_env) if self.config.expert_relabel else None
-        obs, _ = slot.env.reset(seed=train_episode_seed(self.config.seed, slot.index, slot.episode))
+        obs = self.envs.reset(slot.index, train_episode_seed(cfg.seed, slot.index, slot.episode))
         slot.obs = self._obs(slot, obs)
         slot.actions, slot.ret, slot.length = [], 0.0, 0
-        if slot.expert is not None:
-            slot.expert.reset()
         self.noise.reset(slot.index)
 
     # -- the loop -----------------------------------------------------------------------------------------------
@@ -269,7 +261,6 @@ class Trainer:
         try:
             while self.step < end and not self._stop:
                 self._collect()
-                self._learn()
                 self._tick()
                 bar.update(cfg.num_envs)
                 if self._crossed(cfg.log_every):
@@ -306,6 +297,17 @@ class Trainer:
             "demonstrations": self.demo_summary,
             "stopped": self._stop,
         }
+
+    def close(self) -> None:
+        """Release the environments (and their worker process); ``train`` does so when the run ends."""
+        if self.envs is not None:
+            self.envs.close()
+            self.envs = None
+
+    def __del__(self) -> None:
+        envs = getattr(self, "envs", None)
+        if envs is not None:
+            envs.close()
 
     def _tick(self) -> None:
         self.wall = time.perf_counter() - self._t_start
@@ -354,50 +356,51 @@ class Trainer:
             self._start_episode(slot)
 
     def _collect(self) -> None:
+        """One step of every environment; the learner's updates run while the environments step.
+
+        Order (the same for both runners, so that they give the same numbers): act on the current observations,
+        start the step, update from the replay buffer as it stands, then store the step's transitions.
+        """
         cfg = self.config
         obs = np.stack([s.obs for s in self.slots])
         if self.step < cfg.learning_starts and not self.buffer.n_demo:
             actions = self.rng.uniform(-1.0, 1.0, (cfg.num_envs, 2))
         else:
             actions = np.clip(self.agent.act(obs) + self.noise.sample(self.rng), -1.0, 1.0)
+        self.envs.step_async(actions)
+        self._learn(self.step + cfg.num_envs)
+        results = self.envs.step_wait()
         rows: dict[str, list[Any]] = {k: [] for k in ("obs", "action", "reward", "next_obs", "terminated", "expert")}
-        for slot, action in zip(self.slots, actions, strict=True):
-            if slot.expert is not None:  # what the planner would do here (it reads the task's full state)
-                rows["expert"].append(np.clip(slot.expert.act({}), -1.0, 1.0))
-            next_flat, reward, terminated, truncated, info = slot.env.step(action)
-            next_obs = self._obs(slot, next_flat)
+        for slot, action, res in zip(self.slots, actions, results, strict=True):
+            next_obs = self._obs(slot, res.obs)
             slot.actions.append(action)
-            slot.ret += reward
+            slot.ret += res.reward
             slot.length += 1
             rows["obs"].append(slot.obs)
             rows["action"].append(action)
-            rows["reward"].append(reward)
+            rows["reward"].append(res.reward)
             rows["next_obs"].append(next_obs)  # at a truncation: the final observation, bootstrapped through
-            rows["terminated"].append(float(terminated))  # goal, collision, off the deck: no bootstrap
-            if terminated or truncated:
-                self.recent.append((outcome_of(info, truncated and not terminated), slot.ret))
+            rows["terminated"].append(float(res.terminated))  # goal, collision, off the deck: no bootstrap
+            rows["expert"].append(res.expert)
+            if res.terminated or res.truncated:
+                self.recent.append((outcome_of(res.info, res.truncated and not res.terminated), slot.ret))
                 self.episodes_done += 1
                 slot.episode += 1
                 self._start_episode(slot)
             else:
                 slot.obs = next_obs
-        batch = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items()}
+        batch = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items() if k != "expert"}
         self.agent.norm.update(batch["obs"])
-        self.buffer.add(
-            batch["obs"],
-            batch["action"],
-            batch["reward"],
-            batch["next_obs"],
-            batch["terminated"],
-            batch["expert"] if cfg.expert_relabel else None,
-        )
+        expert = np.asarray(rows["expert"], dtype=np.float32) if cfg.expert_relabel else None
+        self.buffer.add(batch["obs"], batch["action"], batch["reward"], batch["next_obs"], batch["terminated"], expert)
         self.step += cfg.num_envs
         frac = min(1.0, self.step / max(1.0, cfg.noise_decay * cfg.total_steps))
         self.noise.sigma = cfg.noise_sigma + frac * (cfg.noise_sigma_final - cfg.noise_sigma)
 
-    def _learn(self) -> None:
+    def _learn(self, step: int) -> None:
+        """The updates owed once the run reaches ``step`` environment steps (``updates_per_step`` each)."""
         cfg = self.config
-        if self.step < cfg.learning_starts:
+        if step < cfg.learning_starts or self.buffer.size == 0:
             return
         self.update_debt += cfg.num_envs * cfg.updates_per_step
         while self.update_debt >= 1.0:
@@ -543,12 +546,11 @@ class Trainer:
         for slot, saved in zip(self.slots, state["slots"], strict=True):
             slot.episode = int(saved["episode"])
             self._start_episode(slot, stage=int(saved["stage"]))
-            for a in saved["actions"].numpy():  # replay the episode so far: same seed, same actions, same state
-                if slot.expert is not None:
-                    slot.expert.act({})  # the planner's own memory of the episode is rebuilt too
-                flat, _, _, _, _ = slot.env.step(a)
-                slot.obs = self._obs(slot, flat)
-                slot.actions.append(a)
+            actions = saved["actions"].numpy()
+            if len(actions):  # replay the episode so far: same seed, same actions, same state (planner included)
+                seed = train_episode_seed(self.config.seed, slot.index, slot.episode)
+                slot.obs = self._obs(slot, self.envs.replay(slot.index, seed, actions))
+                slot.actions = list(actions)
             if not np.array_equal(slot.obs, saved["obs"].numpy()):
                 raise CheckpointError(
                     f"environment {slot.index} did not replay to its checkpointed state: the scene or deck_sim "
