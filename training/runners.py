@@ -132,10 +132,14 @@ class WorkerError(RuntimeError):
 
 
 class WorkerEnvs:
-    """Environments stepped in one worker process (``spawn``), overlapping with the learner's updates."""
+    """Environments stepped in one worker process, overlapping with the learner's updates.
+
+    The worker is forked where the platform allows (it builds its own environments and never uses torch), so a
+    script without an ``if __name__ == "__main__"`` guard still works; elsewhere it is spawned.
+    """
 
     def __init__(self, n: int) -> None:
-        ctx = mp.get_context("spawn")
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_worker, args=(child, n), daemon=True, name="deck_sim-envs")
         self._proc.start()
