@@ -10,8 +10,8 @@ arm, with the machine; plots success and mean episode reward against environment
                                   [--seeds 0] [--out runs/learning] [--plot docs/learning_deck1.png]
 
 Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
-tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``ABLATIONS``. An arm whose run folder already
-holds a finished run is read back, not retrained (delete the folder to rerun it).
+tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. An arm whose
+run folder already holds a finished run is read back, not retrained (delete the folder to rerun it).
 """
 
 from __future__ import annotations
@@ -30,41 +30,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.config import make_config  # noqa: E402
+from training.config import arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
-
-ABLATIONS: dict[str, dict[str, object]] = {
-    "obsnorm": {"obs_norm": False},
-    "td3": {"twin_critics": False, "target_noise": 0.0, "policy_delay": 1},
-    "vec": {"num_envs": 1, "updates_per_step": 1.0},
-    "demos": {"demo_episodes": 0, "pretrain_updates": 0, "bc_weight": 0.0, "expert_relabel": False},
-    "relabel": {"expert_relabel": False},
-    "bc": {"bc_weight": 0.0},
-}
-
-
-def arm_config(arm: str, scene: str, steps: int, seed: int, eval_every: int, eval_episodes: int):  # noqa: ANN201
-    """The ``TrainConfig`` of an arm name."""
-    parts = arm.split("-")
-    if len(parts) < 2 or parts[0] not in ("paper", "tuned") or parts[1] not in ("ddpg", "mddpg"):
-        raise SystemExit(f"unknown arm {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>]")
-    fields: dict[str, object] = {}
-    if len(parts) > 2:
-        switch = "-".join(parts[3:]) if parts[2] == "no" else ""
-        if switch not in ABLATIONS:
-            raise SystemExit(f"unknown ablation in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}>")
-        fields.update(ABLATIONS[switch])
-    return make_config(
-        parts[0],
-        algo=parts[1],
-        scene=scene,
-        seed=seed,
-        total_steps=steps,
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
-        checkpoint_every=eval_every,
-        **fields,
-    )
 
 
 def read_eval(run: Path) -> list[dict[str, float]]:
@@ -91,7 +58,10 @@ def main() -> None:
         for seed in seeds:
             run = Path(args.out) / f"{args.scene}-{arm}-seed{seed}"
             if not (run / "actor.npz").exists():
-                cfg = arm_config(arm, args.scene, args.steps, seed, args.eval_every, args.eval_episodes)
+                try:
+                    cfg = arm_config(arm, args.scene, args.steps, seed, args.eval_every, args.eval_episodes)
+                except ValueError as err:
+                    raise SystemExit(str(err)) from err
                 resume = (run / "checkpoint.pt").exists()
                 print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
                 Trainer(cfg, run, resume=resume).train()

@@ -1,7 +1,8 @@
 """Train the MDDPG policies shipped in ``deck_sim/trained/`` and measure them on held-out episodes.
 
 For each scene: one ``deck-sim train --algo mddpg --preset tuned`` run (``training.loop.Trainer``) in
-``--out/<scene>-mddpg-seed<seed>``, resumed if a checkpoint is there; the actor with the best periodic held-out
+``--out/<scene>-tuned-mddpg-seed<seed>`` (the folder ``benchmarks/learning.py`` reads for that arm), resumed if a
+checkpoint is there; the actor with the best periodic held-out
 evaluation (seed-500 stream) is then measured on ``--episodes`` further held-out episodes, the stream of
 ``deck-sim run --scene <scene> --policy mddpg --seed 1000`` (never a training, demonstration or selection
 episode), and copied to ``deck_sim/trained/<scene>_mddpg.npz`` (weights only, a few hundred KiB). The figures go to
@@ -30,7 +31,7 @@ import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import TRAINED_DIR, LearnedPolicy  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
-from training.config import make_config  # noqa: E402
+from training.config import TrainConfig, arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
 
 HELD_OUT_SEED = 1000
@@ -49,7 +50,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=60_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per scene (seed 1000)")
-    parser.add_argument("--out", default="runs/shipped")
+    parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="TrainConfig overrides")
     args = parser.parse_args()
     fields = {}
@@ -60,18 +61,8 @@ def main() -> None:
     report_path = TRAINED_DIR / "results.json"
     report = json.loads(report_path.read_text()) if report_path.exists() else {}
     for scene in args.scenes.split(","):
-        run = Path(args.out) / f"{scene}-mddpg-seed{args.seed}"
-        cfg = make_config(
-            "tuned",
-            algo="mddpg",
-            scene=scene,
-            seed=args.seed,
-            total_steps=args.steps,
-            eval_every=args.steps // 8,
-            eval_episodes=50,
-            checkpoint_every=args.steps // 8,
-            **fields,
-        )
+        run = Path(args.out) / f"{scene}-tuned-mddpg-seed{args.seed}"  # benchmarks/learning.py's folder for it
+        cfg = TrainConfig.from_dict({**arm_config("tuned-mddpg", scene, args.steps, args.seed).to_dict(), **fields})
         if not (run / "actor.npz").exists():
             resume = (run / "checkpoint.pt").exists()
             print(

@@ -252,12 +252,13 @@ PRESETS: dict[str, dict[str, Any]] = {
         "env_worker": True,
         "updates_per_step": 0.5,
         "demo_episodes": 100,
-        "bc_weight": 5.0,
+        "hidden": (400, 300),
+        "bc_weight": 20.0,
         "q_filter": False,
         "expert_relabel": True,
         "pretrain_updates": 3_000,
         "reward_scale": 0.1,
-        "noise_sigma": 0.2,
+        "noise_sigma": 0.1,
     },
 }
 
@@ -270,3 +271,43 @@ def make_config(preset: str = "tuned", **fields: Any) -> TrainConfig:
     values.setdefault("extra", {})
     values["extra"] = {**values["extra"], "preset": preset}
     return TrainConfig.from_dict(values)
+
+
+ABLATIONS: dict[str, dict[str, Any]] = {
+    "obsnorm": {"obs_norm": False},
+    "td3": {"twin_critics": False, "target_noise": 0.0, "policy_delay": 1},
+    "vec": {"num_envs": 1, "updates_per_step": 1.0},
+    "demos": {"demo_episodes": 0, "pretrain_updates": 0, "bc_weight": 0.0, "expert_relabel": False},
+    "relabel": {"expert_relabel": False},
+    "bc": {"bc_weight": 0.0},
+}
+"""What each ``-no-<switch>`` arm of ``arm_config`` turns off in the tuned recipe."""
+
+
+def arm_config(
+    arm: str, scene: str, steps: int, seed: int, eval_every: int = 5_000, eval_episodes: int = 50
+) -> TrainConfig:
+    """The config of a named recipe, as ``benchmarks/learning.py`` and ``scripts/train_shipped.py`` run them:
+    ``<paper|tuned>-<ddpg|mddpg>`` or ``tuned-<algo>-no-<switch>`` (a switch of ``ABLATIONS`` turned off), with
+    held-out evaluations (and checkpoints) every ``eval_every`` steps."""
+    parts = arm.split("-")
+    if len(parts) < 2 or parts[0] not in PRESETS or parts[1] not in ALGOS:
+        raise ConfigError(f"unknown recipe {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>]")
+    fields: dict[str, Any] = {}
+    if len(parts) > 2:
+        switch = "-".join(parts[3:]) if parts[2] == "no" else ""
+        if switch not in ABLATIONS:
+            raise ConfigError(f"unknown ablation in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}>")
+        fields.update(ABLATIONS[switch])
+    return make_config(
+        parts[0],
+        algo=parts[1],
+        scene=scene,
+        seed=seed,
+        total_steps=steps,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        checkpoint_every=eval_every,
+        extra={"recipe": arm},
+        **fields,
+    )

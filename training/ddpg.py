@@ -109,7 +109,6 @@ class DDPGAgent:
         return stats
 
     def _update_actor(self, obs: torch.Tensor, batch: Batch, clone_only: bool = False) -> dict[str, float]:
-        cfg = self.config
         critic_params = list(self.critic.parameters())
         for p in critic_params:  # the actor's loss needs dQ/da, not the critic's weight gradients: skip them
             p.requires_grad_(False)

@@ -41,8 +41,8 @@ from training.buffers import ReplayBuffer
 from training.config import ConfigError, CurriculumStage, TrainConfig, train_episode_seed
 from training.ddpg import DDPGAgent
 from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
-from training.runners import make_runner
 from training.noise import make_noise
+from training.runners import make_runner
 
 log = logging.getLogger(__name__)
 
