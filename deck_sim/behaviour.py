@@ -3,7 +3,8 @@
 Each mover picks a special spot, plans the shortest route around the static obstacles to it, drives the route
 at a cruise speed drawn for this trip, brakes to a stop at the spot, dwells a random time, then picks another
 spot (never the one it is at) and leaves at a new random speed. Movers brake for other movers close ahead of
-them and, as an emergency stop, for the agent (``yield_to_agent``). Rules that keep them from deadlocking or
+them and, as an emergency stop, for the agent (``yield_to_agent``), judged by the agent's shape turned to its
+heading (``agent_parts``: an aircraft's nose reaches past its wings). Rules that keep them from deadlocking or
 shoving: when two wait on each other the lower-numbered one goes first, unless they meet head on, when both wait
 and the higher-numbered one heads for another spot; a mover never drives into one right at its nose; one that
 waited on the agent longer than ``max_yield_time`` heads for another spot.
@@ -91,9 +92,11 @@ class MoverBehaviour:
     fronts: np.ndarray | None = None
     """(n,) metres from each mover's centre to its nose (half-length); the radii when not given."""
     agent_radius: float = 0.0
-    """Metres: half-width of the agent (what a mover must clear when passing it)."""
-    agent_front: float = 0.0
-    """Metres: half-length of the agent (how far it reaches towards a mover that meets it head-on)."""
+    """Metres: radius of the disc that stands for the agent when ``agent_parts`` is not given."""
+    agent_parts: np.ndarray | None = None
+    """(k, 5) the agent's shape as rounded boxes in its own frame, one per collision geom: centre x, y,
+    half-length, half-width, radius (metres; ``entities.planar_parts``). Movers yield to this shape turned to the
+    agent's heading: an aircraft's nose reaches 9 m from its centre, its wings 7 m, so no disc fits it."""
     graphs: list[VisibilityGraph] = field(default_factory=list)
 
     def reset(
@@ -133,22 +136,23 @@ class MoverBehaviour:
         self.waypoint = np.zeros(n, dtype=int)
         self.route_last = np.zeros(n, dtype=int)
         self._lower = np.arange(n)[None, :] < np.arange(n)[:, None]  # [i, j]: j < i
-        # what each mover yields to: the other movers and, if enabled, the agent (last column)
-        self._others = np.zeros((n + 1, 2))
+        # what each mover yields to: the other movers (pairs of discs and half-lengths) and, if enabled, the
+        # agent (its parts turned to its heading, ``_agent_ahead``)
         # ahead: free distance + own half-length + the other's half-length; beside: both half-widths
-        radii_all = np.append(self.radii, self.agent_radius)
         fronts = self.radii if self.fronts is None else np.asarray(self.fronts, dtype=float)
-        fronts_all = np.append(fronts, max(self.agent_front, self.agent_radius))
-        rsum = self.radii[:, None] + radii_all[None, :]
-        fsum = fronts[:, None] + fronts_all[None, :]
+        self._fronts = fronts
+        rsum = self.radii[:, None] + self.radii[None, :]
+        fsum = fronts[:, None] + fronts[None, :]
         self._yield_reach = self.params.yield_distance + fsum
-        self._yield_reach[:, n] = self.params.agent_yield_distance + fsum[:, n]
         self._yield_reach[np.arange(n), np.arange(n)] = -1.0  # never yield to oneself
-        if not self.params.yield_to_agent:
-            self._yield_reach[:, n] = -1.0
-        self._contact_reach = fsum[:, :n] + 2.0  # closer than this ahead: always wait
+        self._contact_reach = fsum + 2.0  # closer than this ahead: always wait
         self._yield_width = rsum + 0.5
-        self._yield_width[:, n] += 0.5
+        parts = self.agent_parts
+        if parts is None:
+            parts = np.array([[0.0, 0.0, 0.0, 0.0, self.agent_radius]])
+        self._agent_parts = np.asarray(parts, dtype=float).reshape(-1, 5)
+        self._agent_reach = (self.params.agent_yield_distance + fronts)[:, None]  # + the part's extent
+        self._agent_width = (self.radii + 1.0)[:, None]  # + the part's extent
         self._any_holonomic = bool(np.any(self.holonomic))
         self._route_cache: dict[tuple[int, int, int], np.ndarray] = {}
         self.aim = np.asarray(positions, dtype=float).copy()
@@ -226,6 +230,7 @@ class MoverBehaviour:
         headings: np.ndarray,
         speeds: np.ndarray,
         agent_xy: np.ndarray,
+        agent_yaw: float = 0.0,
     ) -> MoverCommands:
         """Desired motion of every mover for the control step starting at time ``t`` (seconds).
 
@@ -233,6 +238,7 @@ class MoverBehaviour:
             dt: the control period, seconds.
             positions: (n, 2) metres; headings: (n,) radians; speeds: (n,) m/s, all measured now.
             agent_xy: (2,) the agent's position, metres.
+            agent_yaw: the agent's heading, radians (turns ``agent_parts``).
         """
         p = self.params
         driving = self.mode == DRIVING
@@ -273,7 +279,7 @@ class MoverBehaviour:
         remaining = dist_aim + self.rest_after_aim
         v_stop = np.sqrt(2.0 * p.decel * np.maximum(remaining - speeds * (0.5 * dt) - 0.3, 0.0))
         v_des = np.minimum(self.cruise, v_stop) * driving
-        v_des[self._must_yield(t, positions, headings, speeds, to_aim, dist_aim, driving, agent_xy)] = 0.0
+        v_des[self._must_yield(t, positions, headings, speeds, to_aim, dist_aim, driving, agent_xy, agent_yaw)] = 0.0
         err = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
         # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
         align = np.maximum(np.cos(err), 0.0)
@@ -301,6 +307,7 @@ class MoverBehaviour:
         dist_aim: np.ndarray,
         driving: np.ndarray,
         agent_xy: np.ndarray,
+        agent_yaw: float,
     ) -> np.ndarray:
         """(n,) whether each driving mover has something close ahead that it must stop for.
 
@@ -318,18 +325,16 @@ class MoverBehaviour:
             hol = self.holonomic & (dist_aim > 1e-6)
             fx[hol] = to_aim[hol, 0] / dist_aim[hol]
             fy[hol] = to_aim[hol, 1] / dist_aim[hol]
-        # others: every mover, then the agent as the last column
-        others = self._others
-        others[:n] = positions
-        others[n] = agent_xy
-        rx = others[None, :, 0] - positions[:, 0:1]
-        ry = others[None, :, 1] - positions[:, 1:2]
+        rx = positions[None, :, 0] - positions[:, 0:1]
+        ry = positions[None, :, 1] - positions[:, 1:2]
         fx, fy = fx[:, None], fy[:, None]
         along = rx * fx + ry * fy
         lateral = np.abs(rx * fy - ry * fx)
         beside = lateral < self._yield_width
-        ahead = (along > 0.0) & (along < self._yield_reach) & beside
-        close = (along[:, :n] > 0.0) & (along[:, :n] < self._contact_reach) & beside[:, :n]
+        movers = (along > 0.0) & (along < self._yield_reach) & beside
+        close = (along > 0.0) & (along < self._contact_reach) & beside
+        agent_parts = self._agent_frame(agent_xy, agent_yaw) if p.yield_to_agent else None
+        for_agent = self._agent_ahead(positions, fx, fy, agent_parts)
         slow = (speeds < p.turn_speed) & (dist_aim > 1e-6)
         if slow.any():
             ax = (to_aim[:, 0] / np.maximum(dist_aim, 1e-6))[:, None]
@@ -338,9 +343,9 @@ class MoverBehaviour:
             towards = (
                 (along_aim > 0.0) & (along_aim < self._yield_reach) & (np.abs(rx * ay - ry * ax) < self._yield_width)
             )
-            ahead &= ~slow[:, None] | towards
-            ahead[:, :n] |= close
-        movers = ahead[:, :n]
+            movers &= ~slow[:, None] | towards
+            movers |= close
+            for_agent &= ~slow | self._agent_ahead(positions, ax, ay, agent_parts)
         # head on (each ahead of the other, facing each other): both wait and the higher-numbered one turns away;
         # in any other stand-off the lower index goes first
         opposed = (fx * fx.T + fy * fy.T) < -0.5
@@ -353,7 +358,7 @@ class MoverBehaviour:
         at_nose = close.any(axis=1)
         waited = t - self.yield_since
         by_mover &= (waited <= p.max_yield_time) | at_nose
-        self.yielding = (by_mover | ahead[:, n]) & driving
+        self.yielding = (by_mover | for_agent) & driving
         # gridlock: one at its nose for longer than ``stuck_time`` -> head for a spot away from it (once per
         # ``max_yield_time``); a wheeled mover turns on the spot towards it and the one at its nose drops out of view
         rested = ~(t - self.last_give_up < p.max_yield_time)
@@ -362,16 +367,47 @@ class MoverBehaviour:
             for i in np.flatnonzero(locked):
                 j = np.flatnonzero(close[i])
                 k = j[np.argmin(along[i, j])]
-                self.blocked_by[i] = others[k] - positions[i]
+                self.blocked_by[i] = positions[k] - positions[i]
         self.give_up_locked = locked
         # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
-        for_agent = ahead[:, n] & driving
+        for_agent &= driving
         self.agent_wait_since[~for_agent] = np.nan
         self.agent_wait_since[for_agent & np.isnan(self.agent_wait_since)] = t
         self.give_up = for_agent & ((t - self.agent_wait_since) > p.max_yield_time)
         # head on with another mover: the higher-numbered one heads for another spot (once per max_yield_time)
         self.give_up |= ((head_on & self._lower).any(axis=1) & driving & rested) | locked
         return self.yielding
+
+    def _agent_frame(self, agent_xy: np.ndarray, agent_yaw: float) -> tuple[np.ndarray, float, float]:
+        """The agent's parts in the world: centres (k, 2), and the cosine and sine of its heading."""
+        c, s = np.cos(agent_yaw), np.sin(agent_yaw)
+        parts = self._agent_parts
+        centres = np.stack([parts[:, 0] * c - parts[:, 1] * s, parts[:, 0] * s + parts[:, 1] * c], axis=1)
+        return centres + agent_xy, c, s
+
+    def _agent_ahead(
+        self, positions: np.ndarray, dx: np.ndarray, dy: np.ndarray, agent: tuple[np.ndarray, float, float] | None
+    ) -> np.ndarray:
+        """(n,) whether any part of the agent lies in the corridor ahead of each mover along (dx, dy) (n, 1).
+
+        The corridor reaches ``agent_yield_distance`` beyond the mover's nose and the part's extent along that
+        direction, and is as wide as both half-widths plus 1 m: a separating-axis test of the part's rounded box
+        on the mover's two axes.
+        """
+        if agent is None:
+            return np.zeros(len(positions), dtype=bool)
+        centres, c, s = agent
+        parts = self._agent_parts
+        rx = centres[None, :, 0] - positions[:, 0:1]  # (n, k)
+        ry = centres[None, :, 1] - positions[:, 1:2]
+        along = rx * dx + ry * dy
+        lateral = np.abs(rx * dy - ry * dx)
+        ux = np.abs(dx * c + dy * s)  # the direction in the agent's frame, (n, 1)
+        uy = np.abs(dy * c - dx * s)
+        reach = parts[:, 2] * ux + parts[:, 3] * uy + parts[:, 4]  # extent of each part along it, (n, k)
+        width = parts[:, 2] * uy + parts[:, 3] * ux + parts[:, 4]  # and across it
+        inside = (along > 0.0) & (along < self._agent_reach + reach) & (lateral < self._agent_width + width)
+        return inside.any(axis=1)
 
     _STATE = (
         "mode",

@@ -71,6 +71,42 @@ def test_a_slow_vehicle_may_turn_away_from_what_is_ahead_of_it():
     assert behaviour.yielding[0]
 
 
+# the aircraft agent as its collision geoms (``Aircraft.parts``): fuselage, wings, tail
+AIRCRAFT_PARTS = np.array([[-0.05, 0.0, 8.25, 0.0, 0.9], [-1.6, 0.0, 2.2, 6.8, 0.0], [-7.4, 0.0, 1.2, 2.6, 0.0]])
+
+
+def test_a_mover_yields_to_the_agent_by_its_shape_turned_to_its_heading():
+    # a tractor drives along +x at 3 m/s; the aircraft agent's centre stands 8 m ahead and 9.5 m to the side:
+    # beyond its 6.8 m wings, but its 9.15 m nose reaches into the tractor's lane when it points across it
+    behaviour = MoverBehaviour(
+        spots=SPOTS,
+        holonomic=np.zeros(1, dtype=bool),
+        radii=np.array([1.0]),
+        params=PARAMS,
+        fronts=np.array([2.0]),
+        agent_radius=7.0,
+        agent_parts=AIRCRAFT_PARTS,
+    )
+    graph = VisibilityGraph(Footprints.empty(), 1.0, BOUNDS)
+    positions, headings, speeds = np.zeros((1, 2)), np.zeros(1), np.array([3.0])
+    behaviour.reset([graph], positions, np.array([-1]), np.random.default_rng(0))
+    behaviour.aim[0] = np.array([60.0, 0.0])
+    agent = np.array([8.0, 9.5])
+    behaviour.command(0.0, 0.5, positions, headings, speeds, agent, agent_yaw=-np.pi / 2)  # nose across the lane
+    assert behaviour.yielding[0]
+    behaviour.command(0.5, 0.5, positions, headings, speeds, agent, agent_yaw=0.0)  # parallel: wings 6.8 m wide
+    assert not behaviour.yielding[0]
+    # without the shape, the agent is a 7 m disc and the nose goes unseen
+    disc = MoverBehaviour(
+        spots=SPOTS, holonomic=np.zeros(1, dtype=bool), radii=np.array([1.0]), params=PARAMS,
+        fronts=np.array([2.0]), agent_radius=7.0,
+    )
+    disc.reset([graph], positions, np.array([-1]), np.random.default_rng(0))
+    disc.aim[0] = np.array([60.0, 0.0])
+    disc.command(0.0, 0.5, positions, headings, speeds, agent, agent_yaw=-np.pi / 2)
+    assert not disc.yielding[0]
+
+
 def _view(mover_yaw: float, lateral: float) -> PlannerView:
     # an 18 m x 13 m aircraft standing at the origin; the agent (radius 7 m) passes it at ``lateral`` metres
     movers = Footprints(np.zeros((1, 2)), np.array([[9.0, 6.5]]), np.array([mover_yaw]), np.zeros(1))

@@ -65,6 +65,44 @@ def test_aircraft_turns_by_its_nose_wheel_at_the_kinematic_rate():
     assert data.qvel[5] == pytest.approx(kinematic, rel=0.03)
 
 
+@pytest.mark.parametrize("start, goal", [(0.9, -0.9), (0.0, 1.2), (1.2, -1.2)])
+def test_the_nose_wheel_swings_lock_to_lock_at_a_standstill_and_settles(start, goal):
+    # a large steer step saturates the servo's torque; with too little steering inertia the clamped servo flipped
+    # sign every physics step (27 rad/s chatter, the wheel stuck 0.2-0.8 rad off) and the aircraft could not turn
+    model, data = _aircraft()
+    steer = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "nose_steer")]
+    data.ctrl[:] = [start, 0.0, 1.0, 1.0]
+    mujoco.mj_step(model, data, nstep=int(3.0 / model.opt.timestep))
+    data.ctrl[:] = [goal, 0.2, 0.0, 0.0]
+    mujoco.mj_step(model, data, nstep=int(2.0 / model.opt.timestep))
+    speeds = []
+    for _ in range(8):
+        mujoco.mj_step(model, data)
+        speeds.append(abs(data.qvel[steer]))
+    assert data.actuator_length[0] == pytest.approx(goal, abs=0.02)
+    assert max(speeds) < 0.05
+    speed = np.hypot(*data.qvel[:2])
+    assert speed > 0.1 and np.sign(data.qvel[5]) == np.sign(goal)  # rolling and turning the way it is steered
+
+
+def test_the_tracker_turns_the_aircraft_round_from_rest():
+    from deck_sim.control.tracking import AircraftLimits, track_displacement
+
+    model, data = _aircraft()
+    limits = AircraftLimits(mass=float(model.body_subtreemass[1]))
+    for goal in (np.pi / 2, np.radians(175)):
+        mujoco.mj_resetDataKeyframe(model, data, 0)
+        nsub = int(round(0.5 / model.opt.timestep))
+        for _ in range(24):  # 12 s
+            yaw = _yaw(data.qpos[3:7])
+            speed = data.qvel[0] * np.cos(yaw) + data.qvel[1] * np.sin(yaw)
+            cmd = track_displacement(3 * np.cos(goal), 3 * np.sin(goal), yaw, speed, 0.5, limits)
+            data.ctrl[:] = [cmd.steer, cmd.thrust, cmd.brake, cmd.brake]
+            mujoco.mj_step(model, data, nstep=nsub)
+        error = (goal - _yaw(data.qpos[3:7]) + np.pi) % (2 * np.pi) - np.pi
+        assert abs(error) < np.radians(10), f"asked for {np.degrees(goal):.0f} deg, off by {np.degrees(error):.0f}"
+
+
 def test_aircraft_brakes_to_a_stop():
     model, data = _aircraft()
     data.ctrl[:] = [0.0, 0.5, 0.0, 0.0]

@@ -399,7 +399,7 @@ def test_cli_info_plot_export_and_recover(recorded, tmp_path, capsys):
     for word in ("/tf", "foxglove.FrameTransforms", "deck_sim.AgentState", "3 complete", "collision", "timeout"):
         assert word in out
     png = tmp_path / "ep.png"
-    assert main(["log", "plot", str(path), "--episode", "1", "--out", str(png), "--steps", "5,20"]) == 0
+    assert main(["log", "plot", str(path), "--episode", "1", "--out", str(png), "--steps", "5,15"]) == 0
     import imageio.v3 as iio
 
     image = iio.imread(png)

@@ -71,3 +71,29 @@ def planar_footprint(root: mjcf.RootElement) -> tuple[np.ndarray, np.ndarray, fl
     ):
         return center, np.zeros(2), float(half[0])
     return center, half, 0.0
+
+
+def planar_parts(root: mjcf.RootElement) -> np.ndarray:
+    """(k, 5) every collision geom of a model as a planar rounded box in the model's frame: centre x, y,
+    half-length, half-width, radius (metres). Finer than ``planar_footprint``'s one box: an aircraft is a cross of
+    fuselage, wings and tail, not the rectangle around them."""
+    rows = []
+    for g in root.find_all("geom"):
+        if not _is_collision(g):
+            continue
+        size = np.asarray(g.size, dtype=float)
+        pos = np.zeros(3) if g.pos is None else np.asarray(g.pos, dtype=float)
+        gtype = g.type or "sphere"
+        if gtype == "box":
+            rows.append([pos[0], pos[1], size[0], size[1], 0.0])
+        elif gtype in ("sphere", "cylinder") or (gtype == "capsule" and g.fromto is None):
+            rows.append([pos[0], pos[1], 0.0, 0.0, size[0]])
+        elif gtype == "capsule":
+            ft = np.asarray(g.fromto, dtype=float)
+            mid, half = (ft[:2] + ft[3:5]) / 2.0, np.abs(ft[3:5] - ft[:2]) / 2.0
+            rows.append([mid[0], mid[1], half[0], half[1], size[0]])
+        else:
+            raise ValueError(f"collision geom {g.name!r}: footprint of type {gtype!r} not supported")
+    if not rows:
+        raise ValueError(f"model {root.model!r} has no collision geoms (class 'collision')")
+    return np.array(rows)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
-from deck_sim.entities._common import load_model, planar_footprint
+from deck_sim.entities._common import load_model, planar_footprint, planar_parts
 
 
 class Aircraft(composer.Entity):
@@ -23,6 +23,7 @@ class Aircraft(composer.Entity):
         self._brakes = [self._mjcf_root.find("actuator", n) for n in ("brake_left", "brake_right")]
         center, half, radius = planar_footprint(self._mjcf_root)
         self.footprint = (center, half, radius)
+        self.parts = planar_parts(self._mjcf_root)  # (k, 5) rounded boxes, one per collision geom
 
     def _build_observables(self) -> AircraftObservables:
         return AircraftObservables(self)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
-from deck_sim.entities._common import load_model, planar_footprint
+from deck_sim.entities._common import load_model, planar_footprint, planar_parts
 
 
 class Pedestrian(composer.Entity):
@@ -23,6 +23,7 @@ class Pedestrian(composer.Entity):
         if rgba is not None:
             self._mjcf_root.find("geom", "body_visual").rgba = rgba
         self.footprint = planar_footprint(self._mjcf_root)
+        self.parts = planar_parts(self._mjcf_root)  # (k, 5) rounded boxes, one per collision geom
 
     def _build_observables(self) -> PedestrianObservables:
         return PedestrianObservables(self)

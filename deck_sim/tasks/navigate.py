@@ -177,7 +177,7 @@ class Navigate(composer.Task):
             radii=self._mover_disc,
             fronts=np.where(self._kinds == ObstacleKind.PEDESTRIAN, self._mover_disc, self._mover_half[:, 0]),
             agent_radius=spec.agent.radius,
-            agent_front=float(self._agent.footprint[1][0] + self._agent.footprint[2]),
+            agent_parts=self._agent.parts,
             params=BehaviourParams(
                 speed_range=spec.movers.speed_range,
                 dwell_range=spec.movers.dwell_range,
@@ -617,6 +617,7 @@ class Navigate(composer.Task):
             st["yaw"][1:],
             st["forward_speed"][1:],
             st["xy"][0],
+            float(st["yaw"][0]),
         )
         d = self._d
         g = self._mover_groups["tractor"]
