@@ -51,6 +51,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per scene (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
+    parser.add_argument(
+        "--evaluate-only",
+        action="store_true",
+        help="measure the shipped files again (no training)",
+    )
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="TrainConfig overrides")
     args = parser.parse_args()
     fields = {}
@@ -59,22 +64,28 @@ def main() -> None:
         fields[k] = json.loads(v)
     TRAINED_DIR.mkdir(exist_ok=True)
     report_path = TRAINED_DIR / "results.json"
-    report = json.loads(report_path.read_text()) if report_path.exists() else {}
     for scene in args.scenes.split(","):
         run = Path(args.out) / f"{scene}-tuned-mddpg-seed{args.seed}"  # benchmarks/learning.py's folder for it
         cfg = TrainConfig.from_dict({**arm_config("tuned-mddpg", scene, args.steps, args.seed).to_dict(), **fields})
-        if not (run / "actor.npz").exists():
+        dest = TRAINED_DIR / f"{scene}_mddpg.npz"
+        if args.evaluate_only:
+            if not dest.exists():
+                raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
+        elif not (run / "actor.npz").exists():
             resume = (run / "checkpoint.pt").exists()
             print(
                 f"training mddpg on {scene} ({args.steps} steps) in {run}" + (" (resuming)" if resume else ""),
                 flush=True,
             )
             Trainer(cfg, run, resume=resume).train()
+        if not args.evaluate_only:
+            shutil.copyfile(run / "actor_best.npz", dest)
         t0 = time.perf_counter()
-        summary = held_out(run / "actor_best.npz", scene, args.episodes)
-        wall = _train_wall(run)
-        dest = TRAINED_DIR / f"{scene}_mddpg.npz"
-        shutil.copyfile(run / "actor_best.npz", dest)
+        summary = held_out(dest, scene, args.episodes)
+        meta = LearnedPolicy.load(dest).meta
+        wall = _train_wall(run) if (run / "eval.csv").exists() else float("nan")
+        # read just before writing: another scene's run may have finished meanwhile
+        report = json.loads(report_path.read_text()) if report_path.exists() else {}
         report[scene] = {
             "episodes": args.episodes,
             "held_out_seed": HELD_OUT_SEED,
@@ -85,7 +96,9 @@ def main() -> None:
             "mean_reward": summary["mean_reward"],
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
-            "train_steps": args.steps,
+            "train_steps": int(meta["config"]["total_steps"]),
+            "selected_at_step": int(meta["trained_steps"]),
+            "git_commit": str(meta.get("git_commit", "")),
             "train_wall_s": wall,
             "seed": args.seed,
             "file_kib": dest.stat().st_size / 1024,
@@ -97,7 +110,7 @@ def main() -> None:
             flush=True,
         )
         report_path.write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
-    write_readme(report)
+        write_readme(report)
 
 
 def _train_wall(run: Path) -> float:
