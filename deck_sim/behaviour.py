@@ -153,6 +153,13 @@ class MoverBehaviour:
         self._agent_parts = np.asarray(parts, dtype=float).reshape(-1, 5)
         self._agent_reach = (self.params.agent_yield_distance + fronts)[:, None]  # + the part's extent
         self._agent_width = (self.radii + 1.0)[:, None]  # + the part's extent
+        # beyond this distance (squared) from a mover no part of the agent can lie in its corridor, whatever the
+        # headings: the test is skipped while the agent is that far from every mover
+        parts = self._agent_parts
+        extent = float(np.max(np.hypot(parts[:, 2], parts[:, 3]) + parts[:, 4]))
+        offset = float(np.max(np.hypot(parts[:, 0], parts[:, 1])))
+        near = np.hypot(self._agent_reach[:, 0] + extent, self._agent_width[:, 0] + extent) + offset
+        self._agent_near_sq = near * near
         self._any_holonomic = bool(np.any(self.holonomic))
         self._route_cache: dict[tuple[int, int, int], np.ndarray] = {}
         self.aim = np.asarray(positions, dtype=float).copy()
@@ -333,7 +340,11 @@ class MoverBehaviour:
         beside = lateral < self._yield_width
         movers = (along > 0.0) & (along < self._yield_reach) & beside
         close = (along > 0.0) & (along < self._contact_reach) & beside
-        agent_parts = self._agent_frame(agent_xy, agent_yaw) if p.yield_to_agent else None
+        agent_parts = None
+        if p.yield_to_agent:
+            rel = positions - agent_xy
+            if ((rel * rel).sum(axis=1) < self._agent_near_sq).any():
+                agent_parts = self._agent_frame(agent_xy, agent_yaw)
         for_agent = self._agent_ahead(positions, fx, fy, agent_parts)
         slow = (speeds < p.turn_speed) & (dist_aim > 1e-6)
         if slow.any():
@@ -345,7 +356,8 @@ class MoverBehaviour:
             )
             movers &= ~slow[:, None] | towards
             movers |= close
-            for_agent &= ~slow | self._agent_ahead(positions, ax, ay, agent_parts)
+            if (for_agent & slow).any():  # (the agent is rarely in anyone's way)
+                for_agent &= ~slow | self._agent_ahead(positions, ax, ay, agent_parts)
         # head on (each ahead of the other, facing each other): both wait and the higher-numbered one turns away;
         # in any other stand-off the lower index goes first
         opposed = (fx * fx.T + fy * fy.T) < -0.5

@@ -98,8 +98,12 @@ def test_a_mover_yields_to_the_agent_by_its_shape_turned_to_its_heading():
     assert not behaviour.yielding[0]
     # without the shape, the agent is a 7 m disc and the nose goes unseen
     disc = MoverBehaviour(
-        spots=SPOTS, holonomic=np.zeros(1, dtype=bool), radii=np.array([1.0]), params=PARAMS,
-        fronts=np.array([2.0]), agent_radius=7.0,
+        spots=SPOTS,
+        holonomic=np.zeros(1, dtype=bool),
+        radii=np.array([1.0]),
+        params=PARAMS,
+        fronts=np.array([2.0]),
+        agent_radius=7.0,
     )
     disc.reset([graph], positions, np.array([-1]), np.random.default_rng(0))
     disc.aim[0] = np.array([60.0, 0.0])

@@ -23,6 +23,30 @@ def test_same_seed_gives_bit_identical_episodes(scene):
 
 
 @pytest.mark.parametrize("scene", SCENES)
+def test_the_plain_observation_path_gives_composers_observations(scene):
+    from deck_sim.environment import DeckEnvironment, make_environment
+
+    fast = make_environment(load_scene(scene), seed=5)
+    slow = make_environment(load_scene(scene), seed=5, plain_observations=False)
+    assert isinstance(fast, DeckEnvironment) and not isinstance(slow, DeckEnvironment)
+    assert fast.observation_spec() == slow.observation_spec()
+    obs_f, rew_f = run_steps(fast, 60, seed=4)
+    obs_s, rew_s = run_steps(slow, 60, seed=4)
+    assert rew_f == rew_s and len(obs_f) == len(obs_s)
+    for of, os_ in zip(obs_f, obs_s, strict=True):
+        assert list(of) == list(os_)
+        for key in of:
+            assert of[key].dtype == os_[key].dtype and of[key].shape == os_[key].shape
+            np.testing.assert_array_equal(of[key], os_[key])
+    # every observation is a copy: stepping on does not change one already returned
+    held = fast.reset().observation
+    first = {k: v.copy() for k, v in held.items()}
+    fast.step(np.array([0.5, 0.0]))
+    for key in first:
+        np.testing.assert_array_equal(held[key], first[key])
+
+
+@pytest.mark.parametrize("scene", SCENES)
 def test_different_seeds_give_different_layouts(scene):
     a = deck_sim.load(scene, seed=1).reset().observation
     b = deck_sim.load(scene, seed=2).reset().observation

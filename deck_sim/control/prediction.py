@@ -77,10 +77,17 @@ def least_squares_velocity(positions: np.ndarray, dt: float, window: int) -> np.
     return np.einsum("k,nkd->nd", _slope_weights(k, float(dt)), positions[:, -k:, :])
 
 
+@functools.lru_cache(maxsize=32)
+def _step_times(horizon: int, dt: float) -> np.ndarray:
+    """(1, horizon, 1) times dt, 2 dt, ... horizon dt (read-only, shared)."""
+    steps = (np.arange(1, horizon + 1, dtype=np.float64) * dt)[None, :, None]
+    steps.setflags(write=False)
+    return steps
+
+
 def constant_velocity_rollout(current: np.ndarray, velocity: np.ndarray, dt: float, horizon: int) -> np.ndarray:
     """Positions (n, horizon, 2) of obstacles moving from ``current`` at constant ``velocity``."""
-    steps = np.arange(1, horizon + 1, dtype=np.float64) * dt
-    return current[:, None, :] + steps[None, :, None] * velocity[:, None, :]
+    return current[:, None, :] + _step_times(int(horizon), float(dt)) * velocity[:, None, :]
 
 
 @dataclass

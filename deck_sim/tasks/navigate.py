@@ -152,6 +152,11 @@ class Navigate(composer.Task):
         self._agent.mjcf_model.worldbody.add(
             "camera", name="chase", mode="trackcom", pos=[0, 0, follow_height], xyaxes=[1, 0, 0, 0, 1, 0]
         )
+        # how many contacts the agent's own body has (its wheels are child bodies, so the deck does not count):
+        # MuJoCo counts them in every step, so the contact list is read only when there is something to name
+        self._contact_sensor = self._agent.mjcf_model.sensor.add(
+            "contact", name="obstacle_contacts", body1=self._agent.root_body, data="found", reduce="mindist"
+        )
 
         # composer sees one substep per control step; after_compile restores the real timestep
         self._n_sub = int(round(ep.control_period / ep.physics_timestep))
@@ -329,6 +334,7 @@ class Navigate(composer.Task):
         self._agent_geom = np.zeros(m.ngeom, dtype=bool)
         self._agent_geom[[physics.bind(g).element_id for g in self._agent.mjcf_model.find_all("geom")]] = True
         self._target_id = physics.bind(self._target_body).element_id
+        self._contact_adr = int(physics.bind(self._contact_sensor).adr)
         self._warning_ids = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
         # the fused substeps (all but composer's last one), split for contact checks
         n_fused = self._n_sub - 1
@@ -641,7 +647,7 @@ class Navigate(composer.Task):
     def _check_contacts(self) -> None:
         """Record the first obstacle the agent touches (contacts between bodies only; wheels touch the deck)."""
         d = self._d
-        if d.ncon == 0 or self._collided_with is not None:
+        if self._collided_with is not None or d.sensordata[self._contact_adr] == 0.0:
             return
         geom = d.contact.geom[: d.ncon]
         a0, a1 = self._agent_geom[geom[:, 0]], self._agent_geom[geom[:, 1]]
