@@ -438,3 +438,20 @@ def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
     assert np.all(rows[:10, dyn] == FAR)  # stage 0: every mover row is the far placeholder
     config = t.config.to_dict()
     assert TrainConfig.from_dict(json.loads(json.dumps(config))).curriculum == stages  # saved and read back
+
+
+@pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
+def test_the_shipped_policies_load_and_act_on_their_scene(scene):
+    import deck_sim
+    from deck_sim.policies import make_policy, shipped_policy_path
+
+    path = shipped_policy_path("mddpg", scene)
+    assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
+    env = deck_sim.load(scene, seed=1000, episode__predictor="mpc")
+    policy = make_policy("mddpg", env)
+    assert policy.meta["scene"] == scene and policy.predictor == "mpc"
+    ts = env.reset()
+    for _ in range(3):
+        action = policy.act(ts.observation)
+        assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+        ts = env.step(action)
