@@ -214,16 +214,23 @@ def _actor_arrays(run_dir):  # noqa: ANN001, ANN202
         return {k: d[k] for k in d.files if k != "meta"}
 
 
+def _assert_same_run(a: Trainer, b: Trainer) -> None:
+    """Same logged losses and statistics, same exported actor, same replay content (actions and observations)."""
+    assert _rows(a.run_dir / "progress.csv") == _rows(b.run_dir / "progress.csv")
+    for k, v in _actor_arrays(a.run_dir).items():
+        np.testing.assert_array_equal(v, _actor_arrays(b.run_dir)[k], err_msg=k)
+    for name in ("action", "obs"):
+        rows_a, rows_b = getattr(a.buffer, name)[: a.buffer.size], getattr(b.buffer, name)[: b.buffer.size]
+        np.testing.assert_array_equal(rows_a, rows_b, err_msg=name)
+
+
 def test_two_seeded_runs_give_identical_losses_and_actions(tmp_path):
     """...and it makes no difference whether the environments step in a worker process or inline."""
     a = Trainer(_short(env_worker=True), tmp_path / "a", progress=False)
     a.train()
     b = Trainer(_short(env_worker=False), tmp_path / "b", progress=False)
     b.train()
-    assert _rows(tmp_path / "a" / "progress.csv") == _rows(tmp_path / "b" / "progress.csv")
-    for k, v in _actor_arrays(tmp_path / "a").items():
-        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "b")[k], err_msg=k)
-    np.testing.assert_array_equal(a.buffer.action[: a.buffer.size], b.buffer.action[: b.buffer.size])
+    _assert_same_run(a, b)
 
 
 def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path):
@@ -235,10 +242,7 @@ def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path):
     assert any(len(s.actions) > 0 for s in first.slots)
     resumed = Trainer(_short(), tmp_path / "broken", resume=True, progress=False)
     resumed.train()
-    assert _rows(tmp_path / "whole" / "progress.csv") == _rows(tmp_path / "broken" / "progress.csv")
-    for k, v in _actor_arrays(tmp_path / "whole").items():
-        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "broken")[k], err_msg=k)
-    np.testing.assert_array_equal(whole.buffer.obs[: whole.buffer.size], resumed.buffer.obs[: resumed.buffer.size])
+    _assert_same_run(whole, resumed)
 
 
 def test_bad_checkpoints_give_clear_errors(tmp_path):

@@ -96,20 +96,6 @@ class SB3Policy:
         return np.clip(np.ravel(action), -1.0, 1.0)
 
 
-def _summary_row(step: int, wall: float, summary: dict[str, float]) -> dict[str, Any]:
-    return {
-        "step": step,
-        "wall_s": round(wall, 2),
-        "episodes": int(summary["episodes"]),
-        "success": summary["goal_rate"],
-        "collision": summary["collision_rate"],
-        "timeout": summary["timeout_rate"],
-        "reward": summary["mean_reward"],
-        "path_ratio": summary["path_ratio"],
-        "turning_deg": summary["turning_angle_deg"],
-    }
-
-
 def train_baseline(
     algo: str,
     scene: str,
@@ -134,7 +120,7 @@ def train_baseline(
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, CheckpointError
+    from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, CheckpointError, eval_row
 
     if algo not in BASELINES:
         raise ValueError(f"unknown baseline {algo!r}; expected one of {', '.join(BASELINES)}")
@@ -206,7 +192,7 @@ def train_baseline(
         summary = summarize([run_episode(eval_env, policy, k) for k in range(eval_episodes)])
         venv.training = True
         with open(out / "eval.csv", "a", newline="") as f:
-            csv.DictWriter(f, fieldnames=EVAL_FIELDS).writerow(_summary_row(step, wall, summary))
+            csv.DictWriter(f, fieldnames=EVAL_FIELDS).writerow(eval_row(step, wall, summary))
         return summary
 
     class Logger(BaseCallback):

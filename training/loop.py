@@ -77,6 +77,21 @@ EVAL_FIELDS = (
 )
 
 
+def eval_row(step: int, wall: float, summary: dict[str, float]) -> dict[str, Any]:
+    """One ``eval.csv`` row (``EVAL_FIELDS``) from ``deck_sim.metrics.summarize``'s summary of an evaluation."""
+    return {
+        "step": step,
+        "wall_s": round(wall, 2),
+        "episodes": int(summary["episodes"]),
+        "success": summary["goal_rate"],
+        "collision": summary["collision_rate"],
+        "timeout": summary["timeout_rate"],
+        "reward": summary["mean_reward"],
+        "path_ratio": summary["path_ratio"],
+        "turning_deg": summary["turning_angle_deg"],
+    }
+
+
 class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read, or that belongs to another configuration."""
 
@@ -427,17 +442,7 @@ class Trainer:
         policy = self.actor_policy()
         results = [run_episode(env, policy, episode=k) for k in range(episodes or cfg.eval_episodes)]
         summary = summarize(results)
-        row = {
-            "step": self.step,
-            "wall_s": round(self.wall, 2),
-            "episodes": len(results),
-            "success": summary["goal_rate"],
-            "collision": summary["collision_rate"],
-            "timeout": summary["timeout_rate"],
-            "reward": summary["mean_reward"],
-            "path_ratio": summary["path_ratio"],
-            "turning_deg": summary["turning_angle_deg"],
-        }
+        row = eval_row(self.step, self.wall, summary)
         self._last_eval_step = self.step
         self._append_csv("eval.csv", EVAL_FIELDS, row)
         if self._tb is not None:
