@@ -226,7 +226,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if summary.get("stopped"):
         print(f"stopped at step {summary['step']}; continue with: deck-sim train --algo {args.algo} "
               f"--out {out} --resume")
-    print(f"wrote {out} (config.json, progress.csv, eval.csv, tb/, checkpoint, exported actor)")
+    actor = "exported actor actor.npz" if (out / "actor.npz").exists() else "no actor yet (the run is not finished)"
+    print(f"wrote {out} (config.json, progress.csv, eval.csv, tb/, checkpoint; {actor})")
     return 0
 
 
