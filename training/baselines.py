@@ -204,6 +204,7 @@ def train_baseline(
             self.t_log, self.n_log = self.t0, done_steps
             self.bar = tqdm(total=steps, initial=done_steps, desc=f"{algo} {scene}", unit="step", disable=not progress)
             self.last_eval: dict[str, float] = {}
+            self.episodes = 0
 
         def _on_step(self) -> bool:
             self.ret += float(self.locals["rewards"][0])
@@ -217,6 +218,7 @@ def train_baseline(
                 )
                 self.recent.append((outcome_of(info, truncated), self.ret))
                 self.ret = 0.0
+                self.episodes += 1
             n = self.num_timesteps
             self.bar.update(1)
             if n % log_every == 0:
@@ -225,7 +227,7 @@ def train_baseline(
                 k = max(len(outcomes), 1)
                 row = {
                     "step": n,
-                    "episodes": len(outcomes),
+                    "episodes": self.episodes,  # all episodes so far, as the DDPG trainer counts them
                     "wall_s": round(now - self.t0, 2),
                     "sps": round((n - self.n_log) / max(now - self.t_log, 1e-9), 1),
                     "ep_reward": float(np.mean([r for _, r in self.recent])) if self.recent else 0.0,
@@ -262,7 +264,7 @@ def train_baseline(
     return {
         "step": int(model.num_timesteps),
         "wall_s": time.perf_counter() - t0,
-        "episodes": len(logger.recent),
+        "episodes": logger.episodes,
         "eval": last,
         "stopped": False,
     }
