@@ -3,14 +3,17 @@
 ``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (it plans around the
 observation's predicted mover positions: the ``oracle`` predictor shows it the movers' true future, ``mpc`` the
 MPC forecast); ``random`` and ``zero`` are references. ``LearnedPolicy`` runs an actor exported by ``training``
-(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone; ``mddpg`` and ``ddpg`` name the policies
-shipped in ``deck_sim/trained/`` for the environment's scene.
+(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone; ``mddpg``, ``ddpg``, ``dqn`` and ``a2c``
+name the policies shipped in ``deck_sim/trained/`` for the environment's scene. The DQN and A2C files are the
+stable-baselines3 networks exported to the same format (``training.baselines.export_sb3``), so evaluating them
+needs neither stable-baselines3 nor ``training``.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -74,6 +77,15 @@ class ZeroPolicy:
 
 
 ACTOR_FORMAT = "deck_sim.actor/1"
+"""DDPG's actors: ReLU hidden layers, a tanh output of 2 (implicit ``activation`` and ``head``)."""
+ACTOR_FORMAT_V2 = "deck_sim.actor/2"
+"""Any MLP policy: ``meta`` names the hidden ``activation`` (``ACTIVATIONS``) and the ``head`` (``HEADS``)."""
+ACTIVATIONS = ("relu", "tanh")
+HEADS = {
+    "tanh": "mu(s) = tanh(MLP(s)), 2 outputs (DDPG's actor)",
+    "clip": "clip(MLP(s), -1, 1), 2 outputs (the mean of A2C's Gaussian policy, as SB3's deterministic predict)",
+    "argmax": "action_table[argmax MLP(s)], one output per row of the file's action_table (DQN's greedy action)",
+}
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 
@@ -82,41 +94,64 @@ class PolicyFileError(ValueError):
 
 
 class LearnedPolicy:
-    """A trained actor, mu(s) = tanh(MLP(normalise(s))), evaluated with numpy from a weights-only ``.npz`` file.
+    """A trained policy network evaluated with numpy from a weights-only ``.npz`` file.
 
     The file holds the layers' weights and biases (``w0``, ``b0``, ...), the observation normaliser's statistics
-    and a JSON ``meta`` record: format, scene, algorithm, predictor, the observation keys and shapes it was
-    trained on, the training configuration. ``act`` flattens the observation dict in the trained key order and
-    checks every shape, so an actor asked to act on another scene or predictor fails with a clear error.
+    (``x -> clip((x - norm_mean) / norm_std, +-norm_clip)`` when ``norm_enabled``) and a JSON ``meta`` record:
+    format, scene, algorithm, predictor, the observation keys and shapes it was trained on, the training
+    configuration. Format ``deck_sim.actor/1`` is DDPG's actor, mu(s) = tanh(MLP(normalise(s))) with ReLU hidden
+    layers; format ``deck_sim.actor/2`` names the hidden ``activation`` and the ``head`` in ``meta`` (``HEADS``;
+    ``argmax`` also needs an ``action_table`` array; ``input_dtype: float32`` rounds observations to float32 first,
+    as the policy saw them in training). ``act`` flattens the observation dict in the trained key
+    order and checks every shape, so a policy asked to act on another scene or predictor fails with a clear error.
     """
 
     def __init__(self, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], source: str = "<arrays>") -> None:
         self.meta = dict(meta)
         self.source = source
+        fmt = self.meta.get("format")
+        if fmt not in (ACTOR_FORMAT, ACTOR_FORMAT_V2):
+            raise PolicyFileError(
+                f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r} or {ACTOR_FORMAT_V2!r}"
+            )
         try:
             self.keys = tuple(self.meta["observation_keys"])
             self.shapes = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
-            n_layers = sum(1 for k in arrays if k.startswith("w"))
+            self.activation = "relu" if fmt == ACTOR_FORMAT else str(self.meta["activation"])
+            self.head = "tanh" if fmt == ACTOR_FORMAT else str(self.meta["head"])
+            n_layers = sum(1 for k in arrays if re.fullmatch(r"w\d+", k))
             self.weights = [np.asarray(arrays[f"w{i}"], dtype=np.float64) for i in range(n_layers)]
             self.biases = [np.asarray(arrays[f"b{i}"], dtype=np.float64) for i in range(n_layers)]
             self.norm_enabled = bool(arrays["norm_enabled"])
             self.norm_mean = np.asarray(arrays["norm_mean"], dtype=np.float64)
             self.norm_std = np.asarray(arrays["norm_std"], dtype=np.float64)
             self.norm_clip = float(arrays["norm_clip"])
+            self.action_table = (
+                np.asarray(arrays["action_table"], dtype=np.float64) if self.head == "argmax" else None
+            )
         except (KeyError, TypeError, ValueError) as err:
             raise PolicyFileError(f"{source}: not a complete deck_sim actor ({err!r} missing or malformed)") from err
-        if self.meta.get("format") != ACTOR_FORMAT:
-            raise PolicyFileError(f"{source}: format {self.meta.get('format')!r}, expected {ACTOR_FORMAT!r}")
+        if self.activation not in ACTIVATIONS:
+            raise PolicyFileError(f"{source}: activation {self.activation!r}, expected one of {ACTIVATIONS}")
+        if self.head not in HEADS:
+            raise PolicyFileError(f"{source}: head {self.head!r}, expected one of {tuple(HEADS)}")
         dim = int(sum(np.prod(s) for s in self.shapes.values()))
         sizes = [dim] + [w.shape[0] for w in self.weights]
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             if w.ndim != 2 or w.shape[1] != sizes[i] or b.shape != (w.shape[0],):
                 raise PolicyFileError(f"{source}: layer {i} has weight {w.shape} and bias {b.shape}, "
                                       f"which do not follow a layer of {sizes[i]} inputs")
-        if not self.weights or sizes[-1] != 2 or self.norm_mean.shape != (dim,) or self.norm_std.shape != (dim,):
-            raise PolicyFileError(f"{source}: expected {dim} inputs and 2 outputs, normaliser of size {dim}")
+        if self.action_table is not None:
+            table = self.action_table
+            if table.ndim != 2 or table.shape[1] != 2 or not np.all(np.abs(table) <= 1.0):
+                raise PolicyFileError(f"{source}: action_table has shape {table.shape}; expected (n, 2) in [-1, 1]")
+        outputs = 2 if self.action_table is None else len(self.action_table)
+        if not self.weights or sizes[-1] != outputs or self.norm_mean.shape != (dim,) or self.norm_std.shape != (dim,):
+            raise PolicyFileError(f"{source}: expected {dim} inputs and {outputs} outputs, normaliser of size {dim}")
         if not all(np.all(np.isfinite(a)) for a in (*self.weights, *self.biases, self.norm_mean, self.norm_std)):
             raise PolicyFileError(f"{source}: the actor holds NaN or infinite weights")
+        if self.norm_enabled and not np.all(self.norm_std > 0):
+            raise PolicyFileError(f"{source}: the normaliser has a zero or negative std")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> LearnedPolicy:
@@ -166,24 +201,31 @@ class LearnedPolicy:
     def act_flat(self, x: np.ndarray) -> np.ndarray:
         """Actions (..., 2) for flat observations (..., dim)."""
         x = np.asarray(x, dtype=np.float64)
+        if self.meta.get("input_dtype") == "float32":  # trained on float32 observations (stable-baselines3)
+            x = x.astype(np.float32).astype(np.float64)
         if self.norm_enabled:
             x = np.clip((x - self.norm_mean) / self.norm_std, -self.norm_clip, self.norm_clip)
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             x = x @ w.T + b
             if i < len(self.weights) - 1:
-                x = np.maximum(x, 0.0)
-        return np.tanh(x)
+                x = np.maximum(x, 0.0) if self.activation == "relu" else np.tanh(x)
+        if self.head == "tanh":
+            return np.tanh(x)
+        if self.head == "clip":
+            return np.clip(x, -1.0, 1.0)
+        return self.action_table[np.argmax(x, axis=-1)]
 
     def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The actor's action (2,) for one observation dict."""
         return self.act_flat(self.flatten(observation))
 
 
-POLICY_NAMES = ("scripted", "random", "zero", "mddpg", "ddpg")
+SHIPPED_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
+POLICY_NAMES = ("scripted", "random", "zero", *SHIPPED_ALGOS)
 
 
 def shipped_policy_path(algo: str, scene: str) -> Path:
-    """The actor file shipped for ``algo`` (``mddpg`` or ``ddpg``) on ``scene``; ``PolicyFileError`` if none is."""
+    """The actor file shipped for ``algo`` (one of ``SHIPPED_ALGOS``) on ``scene``; ``PolicyFileError`` if none is."""
     path = TRAINED_DIR / f"{scene}_{algo}.npz"
     if not path.exists():
         shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
@@ -196,7 +238,7 @@ def shipped_policy_path(algo: str, scene: str) -> Path:
 
 def policy_file(name: str, scene: str) -> Path | None:
     """The actor file behind policy ``name`` on ``scene``: a shipped one, a path, or None for a reference policy."""
-    if name in ("mddpg", "ddpg"):
+    if name in SHIPPED_ALGOS:
         return shipped_policy_path(name, scene)
     if name.endswith(".npz") or os.sep in name:
         return Path(name)
@@ -204,8 +246,8 @@ def policy_file(name: str, scene: str) -> Path | None:
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``: a reference policy, a shipped learned one (``mddpg``, ``ddpg``)
-    or an actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
+    """The policy called ``name`` for ``env``: a reference policy, a shipped learned one (``mddpg``, ``ddpg``,
+    ``dqn``, ``a2c``) or an actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
     if name == "scripted":
         return ScriptedPolicy(env)
     if name == "random":

@@ -1,16 +1,34 @@
-"""Train the MDDPG policies shipped in ``deck_sim/trained/`` and measure them on held-out episodes.
+"""Train the policies shipped in ``deck_sim/trained/`` and measure them on held-out episodes.
 
-For each scene: one ``deck-sim train --algo mddpg --preset tuned`` run (``training.loop.Trainer``) in
-``--out/<scene>-tuned-mddpg-seed<seed>`` (the folder ``benchmarks/learning.py`` reads for that arm), resumed if a
-checkpoint is there; the actor with the best periodic held-out
-evaluation (seed-500 stream) is then measured on ``--episodes`` further held-out episodes, the stream of
-``deck-sim run --scene <scene> --policy mddpg --seed 1000`` (never a training, demonstration or selection
-episode), and copied to ``deck_sim/trained/<scene>_mddpg.npz`` (weights only, a few hundred KiB). The figures go to
-``deck_sim/trained/README.md``, written by this script, never by hand.
+For each scene and agent (``--algos``, default all four learned agents of the paper):
 
-Long work: run it in the background (``nohup python scripts/train_shipped.py > train.log &``), never in tests.
+- ``mddpg`` and ``ddpg``: one ``deck-sim train --algo <algo> --preset tuned`` run (``training.loop.Trainer``,
+  recipe ``arm_config("tuned-<algo>", ...)``) in ``--out/<scene>-tuned-<algo>-seed<seed>`` (the folder
+  ``benchmarks/learning.py`` reads for that arm), for ``DDPG_STEPS[scene]`` steps. DDPG is MDDPG without
+  prediction (predictor ``none``) at the same budget.
+- ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
+  ``--out/<scene>-<algo>-seed<seed>``, for ``SB3_STEPS`` steps (they step about ten times faster than the DDPG
+  trainer here, so they get 100,000 steps in under a third of its wall-clock time), held-out evaluation every
+  10,000 steps on 50 episodes; the networks are exported to numpy (``training.baselines.export_sb3``), so the
+  shipped files need neither stable-baselines3 nor ``training``.
 
-    python scripts/train_shipped.py [--scenes deck1,deck2,square] [--steps 60000] [--seed 0] [--episodes 200]
+A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
+actor with the best periodic held-out evaluation (seed-500 stream) is then measured on ``--episodes`` further
+held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a training,
+demonstration or selection episode), and copied to ``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few
+hundred KiB). The figures go to ``deck_sim/trained/results.json`` (``{scene: {algo: figures}}``) and
+``deck_sim/trained/README.md``, written by this script, never by hand. An agent already shipped and measured is
+skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files again without training).
+
+Order: agents whose runs are finished first, then the cheap SB3 runs, then the DDPG runs, so the files land
+incrementally; each is shipped as soon as it is measured. Several copies may run at once on disjoint work
+(``results.json`` is updated under a file lock).
+
+Long work: run it in the background (``nohup nice -n 10 python scripts/train_shipped.py > train.log 2>&1 &``),
+never in tests.
+
+    python scripts/train_shipped.py [--scenes deck1,deck2,square] [--algos mddpg,ddpg,dqn,a2c] [--steps N]
+                                    [--seed 0] [--episodes 200] [--redo | --evaluate-only]
 """
 
 from __future__ import annotations
@@ -21,20 +39,30 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import csv  # noqa: E402
+import fcntl  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
-from deck_sim.policies import TRAINED_DIR, LearnedPolicy  # noqa: E402
+from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
-from training.config import TrainConfig, arm_config  # noqa: E402
-from training.loop import Trainer  # noqa: E402
 
 HELD_OUT_SEED = 1000
+DDPG_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
+"""Training steps of the shipped MDDPG and DDPG actors per scene (the same budget for both)."""
+SB3_STEPS = 100_000
+"""Training steps of the shipped DQN and A2C models (every scene)."""
+SB3_EVAL_EVERY, SB3_EVAL_EPISODES = 10_000, 50
+LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
 
 
 def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
@@ -44,49 +72,111 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
 
 
+def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
+    """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives."""
+    if algo in ("mddpg", "ddpg"):
+        return out / f"{scene}-tuned-{algo}-seed{seed}"  # benchmarks/learning.py's folder for that arm
+    return out / f"{scene}-{algo}-seed{seed}"
+
+
+def default_steps(scene: str, algo: str) -> int:
+    return DDPG_STEPS.get(scene, 60_000) if algo in ("mddpg", "ddpg") else SB3_STEPS
+
+
+def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
+    """Train (or resume) the run unless it has finished (a final ``actor.npz``)."""
+    if (run / "actor.npz").exists():
+        return
+    if algo in ("mddpg", "ddpg"):
+        from training.config import TrainConfig, arm_config
+        from training.loop import Trainer
+
+        cfg = TrainConfig.from_dict({**arm_config(f"tuned-{algo}", scene, steps, seed).to_dict(), **fields})
+        resume = (run / "checkpoint.pt").exists()
+        print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
+        Trainer(cfg, run, resume=resume, progress=False).train()
+    else:
+        from training.baselines import train_baseline
+
+        resume = (run / "model.zip").exists()
+        print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
+        train_baseline(algo, scene, steps, seed, run, resume=resume, progress=False, eval_every=SB3_EVAL_EVERY,
+                       eval_episodes=SB3_EVAL_EPISODES)
+
+
+@contextlib.contextmanager
+def locked_report() -> Iterator[dict[str, dict[str, dict]]]:
+    """``results.json`` read and written under an exclusive lock (other copies of this script may run)."""
+    path = TRAINED_DIR / "results.json"
+    with open(Path(tempfile.gettempdir()) / "deck_sim_train_shipped.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        report = read_report(path)
+        yield report
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
+        os.replace(tmp, path)
+        write_readme(report)
+
+
+def read_report(path: Path) -> dict[str, dict[str, dict]]:
+    """``{scene: {algo: figures}}``; an older file with one MDDPG record per scene is read as such."""
+    report = json.loads(path.read_text()) if path.exists() else {}
+    return {scene: ({"mddpg": r} if "success" in r else r) for scene, r in report.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", default="deck1,deck2,square")
-    parser.add_argument("--steps", type=int, default=60_000)
+    parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help=f"training steps for every agent (default: MDDPG and DDPG {DDPG_STEPS}, "
+                             f"DQN and A2C {SB3_STEPS})")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per scene (seed 1000)")
+    parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
-    parser.add_argument(
-        "--evaluate-only",
-        action="store_true",
-        help="measure the shipped files again (no training)",
-    )
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="TrainConfig overrides")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
+    mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="TrainConfig overrides (MDDPG and DDPG runs)")
     args = parser.parse_args()
     fields = {}
     for item in args.set:
         k, _, v = item.partition("=")
         fields[k] = json.loads(v)
+    algos = args.algos.split(",")
+    unknown = sorted(set(algos) - set(SHIPPED_ALGOS))
+    if unknown:
+        raise SystemExit(f"unknown agents {unknown}; expected some of {', '.join(SHIPPED_ALGOS)}")
     TRAINED_DIR.mkdir(exist_ok=True)
-    report_path = TRAINED_DIR / "results.json"
+    out = Path(args.out)
+    shipped = read_report(TRAINED_DIR / "results.json")
+    work = []
     for scene in args.scenes.split(","):
-        run = Path(args.out) / f"{scene}-tuned-mddpg-seed{args.seed}"  # benchmarks/learning.py's folder for it
-        cfg = TrainConfig.from_dict({**arm_config("tuned-mddpg", scene, args.steps, args.seed).to_dict(), **fields})
-        dest = TRAINED_DIR / f"{scene}_mddpg.npz"
+        for algo in algos:
+            dest = TRAINED_DIR / f"{scene}_{algo}.npz"
+            if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}):
+                print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
+                continue
+            run = run_folder(out, scene, algo, args.seed)
+            cost = 0 if args.evaluate_only or (run / "actor.npz").exists() else 1 if algo in ("dqn", "a2c") else 2
+            work.append((cost, len(work), scene, algo, run, dest))
+    for _, _, scene, algo, run, dest in sorted(work):
+        steps = args.steps if args.steps is not None else default_steps(scene, algo)
         if args.evaluate_only:
             if not dest.exists():
                 raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
-        elif not (run / "actor.npz").exists():
-            resume = (run / "checkpoint.pt").exists()
-            print(
-                f"training mddpg on {scene} ({args.steps} steps) in {run}" + (" (resuming)" if resume else ""),
-                flush=True,
-            )
-            Trainer(cfg, run, resume=resume).train()
-        if not args.evaluate_only:
-            shutil.copyfile(run / "actor_best.npz", dest)
+        else:
+            train(run, scene, algo, steps, args.seed, fields)
+            tmp = dest.with_name(dest.name + ".tmp")
+            shutil.copyfile(run / "actor_best.npz", tmp)
+            os.replace(tmp, dest)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = LearnedPolicy.load(dest).meta
         wall = _train_wall(run) if (run / "eval.csv").exists() else float("nan")
-        # read just before writing: another scene's run may have finished meanwhile
-        report = json.loads(report_path.read_text()) if report_path.exists() else {}
-        report[scene] = {
+        record = {
+            "algo": algo,
             "episodes": args.episodes,
             "held_out_seed": HELD_OUT_SEED,
             "success": summary["goal_rate"],
@@ -96,6 +186,7 @@ def main() -> None:
             "mean_reward": summary["mean_reward"],
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
+            "predictor": str(meta.get("predictor", "none")),
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),
@@ -104,43 +195,48 @@ def main() -> None:
             "file_kib": dest.stat().st_size / 1024,
             "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
         }
+        with locked_report() as report:  # read just before writing: another run may have finished meanwhile
+            report.setdefault(scene, {})[algo] = record
         print(
-            f"{scene}: held-out success {100 * summary['goal_rate']:.1f} % over {args.episodes} episodes "
+            f"{scene} {algo}: held-out success {100 * summary['goal_rate']:.1f} % over {args.episodes} episodes "
             f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
             flush=True,
         )
-        report_path.write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
-        write_readme(report)
 
 
 def _train_wall(run: Path) -> float:
-    import csv
-
     with open(run / "eval.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     return float(rows[-1]["wall_s"]) if rows else float("nan")
 
 
-def write_readme(report: dict[str, dict]) -> None:
+def write_readme(report: dict[str, dict[str, dict]]) -> None:
     lines = [
         "# Shipped policies",
         "",
-        "MDDPG actors (weights only, `deck_sim.policies.LearnedPolicy`), written by `python scripts/train_shipped.py`;",
-        "this page is written by that script too. Held-out: consecutive episodes of `deck_sim.load(scene, seed=1000)`,",
-        "the stream of `deck-sim run --scene <scene> --policy mddpg --seed 1000` (never a training, demonstration or",
-        "model-selection episode).",
+        "Weights-only actors (`deck_sim.policies.LearnedPolicy`, numpy alone), written by",
+        "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
+        "`training.loop.Trainer` runs of the tuned recipe (DDPG: the same agent and budget without the MPC",
+        "prediction); DQN and A2C are stable-baselines3 runs (`training.baselines`) exported to numpy. Each file is",
+        "the actor of the run's best periodic evaluation (seed-500 episodes). Held-out: consecutive episodes of",
+        "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
+        "(never a training, demonstration or model-selection episode). Training time: wall-clock on the machine",
+        "named in `results.json`, periodic evaluations included, while other work shared it.",
         "",
-        "| scene | held-out episodes | success | collision | timeout | left the deck | mean reward | path / straight |"
-        " turning angle | training steps | training time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | agent | held-out episodes | success | collision | timeout | left the deck | mean reward |"
+        " path / straight | turning angle | training steps | training time |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for scene, r in sorted(report.items()):
-        lines.append(
-            f"| {scene} | {r['episodes']} | {100 * r['success']:.1f} % | {100 * r['collision']:.1f} % | "
-            f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['mean_reward']:.1f} | "
-            f"{r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | {r['train_steps']} | "
-            f"{r['train_wall_s'] / 60:.0f} min |"
-        )
+    order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
+    for scene in sorted(report):
+        for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
+            r = report[scene][algo]
+            lines.append(
+                f"| {scene} | {LABELS.get(algo, algo)} | {r['episodes']} | {100 * r['success']:.1f} % | "
+                f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
+                f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
+                f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"
+            )
     (TRAINED_DIR / "README.md").write_text("\n".join(lines) + "\n")
 
 

@@ -9,12 +9,20 @@ A run folder holds ``progress.csv`` and ``eval.csv`` with the columns of the DDP
 TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own formats, which pickle:
 load only runs you trust). ``--resume`` loads them and goes on for the remaining steps; unlike the DDPG trainer it
 is not bit-exact (SB3 does not restore the environments' episodes).
+
+As the DDPG trainer does, a run also writes its policy as a weights-only ``.npz`` that ``deck_sim.policies``
+evaluates with numpy alone (``export_sb3``: format ``deck_sim.actor/2``): ``actor_best.npz`` at the best periodic
+held-out evaluation so far and ``actor.npz`` at the end. DQN's file is its Q-network with an ``argmax`` head over
+``discrete_actions()``, A2C's the mean of its Gaussian policy, clipped to [-1, 1] as SB3's deterministic
+``predict`` does; both carry the ``VecNormalize`` observation statistics and give SB3's own actions.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import logging
+import os
 import time
 from collections import deque
 from pathlib import Path
@@ -26,7 +34,8 @@ from tqdm import tqdm
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize
-from deck_sim.rollout import run_episode
+from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy
+from deck_sim.rollout import git_commit, run_episode
 from deck_sim.wrappers import DeckSimEnv
 from training.config import train_episode_seed
 
@@ -96,6 +105,79 @@ class SB3Policy:
         return np.clip(np.ravel(action), -1.0, 1.0)
 
 
+def _mlp_layers(modules: list[Any]) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
+    """The (weight, bias) pairs of an alternating Linear / activation / ... / Linear stack, and the activation."""
+    import torch
+
+    layers, acts = [], set()
+    for i, m in enumerate(modules):
+        expect_linear = i % 2 == 0
+        if expect_linear and isinstance(m, torch.nn.Linear):
+            layers.append((m.weight.detach().cpu().double().numpy(), m.bias.detach().cpu().double().numpy()))
+        elif not expect_linear and isinstance(m, (torch.nn.ReLU, torch.nn.Tanh)):
+            acts.add("relu" if isinstance(m, torch.nn.ReLU) else "tanh")
+        else:
+            raise ValueError(f"cannot export layer {i} ({type(m).__name__}): expected Linear layers and ReLU or Tanh")
+    if len(modules) % 2 != 1 or len(acts) > 1:
+        raise ValueError("cannot export the network: not a Linear stack with one hidden activation")
+    return layers, acts.pop() if acts else "relu"
+
+
+def export_sb3(
+    model: Any, vecnormalize: Any, algo: str, meta: dict[str, Any]
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A DQN or A2C model (``MlpPolicy``) and its ``VecNormalize`` as the arrays and ``meta`` of a weights-only
+    ``deck_sim.actor/2`` file (``LearnedPolicy``); ``meta`` must give the observation keys and shapes."""
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    if algo == "dqn":
+        net = model.q_net
+        modules = list(net.q_net)
+        head = "argmax"
+    elif algo == "a2c":
+        net = model.policy
+        if not net.share_features_extractor and not isinstance(net.pi_features_extractor, FlattenExtractor):
+            raise ValueError("cannot export an A2C policy with its own features extractor")
+        modules = [*net.mlp_extractor.policy_net, net.action_net]
+        head = "clip"
+    else:
+        raise ValueError(f"unknown baseline {algo!r}; expected one of {', '.join(BASELINES)}")
+    if not isinstance(net.features_extractor, FlattenExtractor):
+        raise ValueError(f"cannot export a {type(net.features_extractor).__name__}: only flat observations")
+    layers, activation = _mlp_layers(modules)
+    arrays: dict[str, np.ndarray] = {}
+    for i, (w, b) in enumerate(layers):
+        arrays[f"w{i}"], arrays[f"b{i}"] = w.astype(np.float32), b.astype(np.float32)
+    rms = vecnormalize.obs_rms
+    arrays["norm_enabled"] = np.array(bool(vecnormalize.norm_obs))
+    arrays["norm_mean"] = np.asarray(rms.mean, dtype=np.float64)
+    arrays["norm_std"] = np.sqrt(np.asarray(rms.var, dtype=np.float64) + vecnormalize.epsilon)
+    arrays["norm_clip"] = np.array(float(vecnormalize.clip_obs))
+    if algo == "dqn":
+        arrays["action_table"] = discrete_actions()
+    full = {
+        **meta,
+        "format": ACTOR_FORMAT_V2,
+        "algo": algo,
+        "activation": activation,
+        "head": head,
+        # the Gymnasium adapter hands SB3 float32 observations; the numpy policy rounds its input the same way
+        "input_dtype": "float32",
+        "predictor": "none",
+    }
+    return arrays, full
+
+
+def save_sb3_actor(path: str | os.PathLike[str], model: Any, vecnormalize: Any, algo: str, meta: dict) -> None:
+    """Write ``export_sb3``'s file atomically (float32 weights: a few hundred KiB)."""
+    arrays, full = export_sb3(model, vecnormalize, algo, meta)
+    LearnedPolicy(arrays, full, source=str(path))  # refuse to write a file deck_sim cannot read
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, meta=np.array(json.dumps(full)), **arrays)
+    os.replace(tmp, path)
+
+
 def train_baseline(
     algo: str,
     scene: str,
@@ -114,7 +196,8 @@ def train_baseline(
     """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps (default 50,000) in ``out``.
 
     ``sb3_kwargs`` go to the SB3 constructor (e.g. ``learning_rate``). Returns the last held-out evaluation and
-    the run's counters, in the shape ``Trainer.train`` returns.
+    the run's counters, in the shape ``Trainer.train`` returns. Writes ``actor_best.npz`` (best periodic
+    evaluation) and ``actor.npz`` (final) for ``deck_sim.policies.LearnedPolicy``.
     """
     from stable_baselines3 import A2C, DQN
     from stable_baselines3.common.callbacks import BaseCallback
@@ -129,6 +212,7 @@ def train_baseline(
     overrides = dict(scene_overrides or {})
     venv = DummyVecEnv([lambda: _make_env(algo, scene, seed, overrides)])
     keys = venv.envs[0].unwrapped.observation_keys
+    shapes = venv.envs[0].unwrapped.composer_env.task.observation_shapes
     model_path, norm_path = out / "model.zip", out / "vecnormalize.pkl"
     cls = DQN if algo == "dqn" else A2C
     done_steps = 0
@@ -141,7 +225,11 @@ def train_baseline(
         except Exception as err:  # SB3 raises many types for a damaged zip or pickle
             raise CheckpointError(f"{out}: cannot load the saved model ({err})") from err
         done_steps = int(model.num_timesteps)
+        earlier = _read_rows(out / "eval.csv")
+        wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock counts every session
+        best_success = max((float(r["success"]) for r in earlier), default=-1.0)
     else:
+        wall_before, best_success = 0.0, -1.0
         if model_path.exists():
             raise CheckpointError(f"{out} already holds a run (model.zip); resume it with --resume or choose another")
         out.mkdir(parents=True, exist_ok=True)
@@ -169,7 +257,7 @@ def train_baseline(
             with open(out / name, "w", newline="") as f:
                 csv.DictWriter(f, fieldnames=fields).writeheader()
         (out / "config.json").write_text(
-            __import__("json").dumps(
+            json.dumps(
                 {
                     "algo": algo,
                     "scene": scene,
@@ -184,15 +272,32 @@ def train_baseline(
             )
         )
     eval_env = deck_sim.load(scene, seed=eval_seed, **{**overrides, "episode__predictor": "none"})
+    run_config = json.loads((out / "config.json").read_text())
+    best = {"success": best_success}
+
+    def actor_meta(step: int) -> dict[str, Any]:
+        return {
+            "scene": scene,
+            "scene_overrides": overrides,
+            "observation_keys": list(keys),
+            "observation_shapes": {k: list(v) for k, v in shapes.items()},
+            "trained_steps": int(step),
+            "config": {**run_config, "total_steps": int(run_config["steps"])},
+            "deck_sim_version": deck_sim.__version__,
+            "git_commit": git_commit(),
+        }
 
     def evaluate(step: int, wall: float) -> dict[str, float]:
         venv.training = False
         eval_env.random_state.seed(eval_seed)
         policy = SB3Policy(model, venv, keys, algo == "dqn")
         summary = summarize([run_episode(eval_env, policy, k) for k in range(eval_episodes)])
+        if summary["goal_rate"] > best["success"]:  # as the DDPG trainer picks actor_best.npz
+            best["success"] = summary["goal_rate"]
+            save_sb3_actor(out / "actor_best.npz", model, venv, algo, actor_meta(step))
         venv.training = True
         with open(out / "eval.csv", "a", newline="") as f:
-            csv.DictWriter(f, fieldnames=EVAL_FIELDS).writerow(eval_row(step, wall, summary))
+            csv.DictWriter(f, fieldnames=EVAL_FIELDS).writerow(eval_row(step, wall_before + wall, summary))
         return summary
 
     class Logger(BaseCallback):
@@ -261,6 +366,7 @@ def train_baseline(
     last = logger.last_eval if eval_every and model.num_timesteps % eval_every == 0 else {}
     if not last:
         last = evaluate(int(model.num_timesteps), time.perf_counter() - t0)
+    save_sb3_actor(out / "actor.npz", model, venv, algo, actor_meta(int(model.num_timesteps)))
     return {
         "step": int(model.num_timesteps),
         "wall_s": time.perf_counter() - t0,
@@ -270,10 +376,15 @@ def train_baseline(
     }
 
 
-def load_baseline(run_dir: str | Path) -> SB3Policy:
-    """The policy of a DQN or A2C run folder (``model.zip`` and ``vecnormalize.pkl``)."""
-    import json
+def _read_rows(path: Path) -> list[dict[str, str]]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
 
+
+def load_baseline(run_dir: str | Path) -> SB3Policy:
+    """The SB3 policy of a DQN or A2C run folder (``model.zip`` and ``vecnormalize.pkl``)."""
     from stable_baselines3 import A2C, DQN
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
@@ -288,4 +399,12 @@ def load_baseline(run_dir: str | Path) -> SB3Policy:
     return SB3Policy(model, norm, keys, algo == "dqn")
 
 
-__all__ = ["BASELINES", "SB3Policy", "discrete_actions", "load_baseline", "train_baseline"]
+__all__ = [
+    "BASELINES",
+    "SB3Policy",
+    "discrete_actions",
+    "export_sb3",
+    "load_baseline",
+    "save_sb3_actor",
+    "train_baseline",
+]

@@ -408,6 +408,60 @@ def _cmd_log_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from training.evaluate import EvalConfig, evaluate, plot_learning_curves, plot_trajectories, write_report
+
+    split = [a.strip() for a in args.agents.split(",") if a.strip()]
+    cfg = EvalConfig(
+        agents=tuple(split),
+        scenes=tuple(s.strip() for s in args.scenes.split(",") if s.strip()),
+        episodes=args.episodes,
+        seed=args.seed,
+        backend=args.backend,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        chunk=args.chunk,
+        record=args.record,
+        out=args.out,
+        near_miss=args.near_miss,
+    )
+    cfg.validate()
+    total = args.episodes * len(cfg.agents) * len(cfg.scenes)
+    bar = tqdm(total=total, desc=f"eval ({cfg.backend})", unit="ep", disable=args.quiet)
+    wins: dict[str, list[int]] = {}
+
+    def progress(done: int, total: int, batch: list[dict]) -> None:
+        bar.update(done - bar.n)
+        for r in batch:
+            w = wins.setdefault(f"{r['scene']}/{r['agent']}", [0, 0])
+            w[0] += r["outcome"] == "goal"
+            w[1] += 1
+        key = f"{batch[-1]['scene']}/{batch[-1]['agent']}"
+        bar.set_postfix({key: f"{100 * wins[key][0] / wins[key][1]:.0f}% of {wins[key][1]}"})
+
+    with bar:
+        res = evaluate(cfg, progress=progress)
+    paths = write_report(res, args.out)
+    print((Path(args.out) / "results.md").read_text())
+    figures = plot_trajectories(res, Path(args.out) / "trajectories")
+    curves = []
+    for item in args.curves:
+        label, _, run = item.partition("=")
+        if not run:
+            raise ValueError(f"--curves {item!r}: expected label=RUN_FOLDER")
+        curves.append((label, run))
+    if curves:
+        figures.append(plot_learning_curves(dict(curves), Path(args.out) / "learning_curves.png"))
+    print(f"{total} episodes in {res.wall_s:.1f} s ({cfg.backend}); wrote " + ", ".join(str(p) for p in paths.values()))
+    if figures:
+        print(f"figures: {', '.join(str(f) for f in figures)}")
+    if res.config.record != "none":
+        print(f"episode logs: {Path(args.out) / 'logs'} (deck-sim log info <file>, or open in Foxglove)")
+    return 0
+
+
 def _register_log_commands(sub: argparse._SubParsersAction) -> None:
     """``deck-sim log info|plot|video|export|recover FILE``."""
     log = sub.add_parser("log", help="read an episode log (MCAP): info, plot, video, export, recover")
@@ -460,7 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="play episodes with a policy and report the metrics")
     p.add_argument("--scene", default="deck1", help="scene name or TOML path (default deck1)")
-    p.add_argument("--policy", default="scripted", help="scripted (full knowledge), random or zero")
+    p.add_argument("--policy", default="scripted",
+                   help="scripted (full knowledge), random, zero, a shipped learned policy (mddpg, ddpg, dqn, a2c) "
+                        "or an actor .npz file")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=0, help="seeds layouts and movers (default 0)")
     p.add_argument(
@@ -498,6 +554,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("eval", help="task-suite evaluation: agents x scenes on held-out episodes, tables and logs")
+    p.add_argument("--agents", default="mddpg,ddpg,apf,astar,mpc",
+                   help="comma-separated: mddpg, ddpg, dqn, a2c (shipped), apf, astar, mpc (classical), scripted, "
+                        "random, zero, or label=actor.npz (default mddpg,ddpg,apf,astar,mpc)")
+    p.add_argument("--scenes", default="deck1,deck2,square", help="comma-separated scene names or TOML paths")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per scene and agent (default 100)")
+    p.add_argument("--seed", type=int, default=100_000,
+                   help="seed of episode 0; episode i uses seed+i, below every training seed (default 100000)")
+    p.add_argument("--backend", default="process", choices=("serial", "process", "ray"),
+                   help="process pool (default), serial, or ray (pip install 'deck-sim[ray]')")
+    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs (default: CPU count)")
+    p.add_argument("--ray-address", default=None, help="address of an existing Ray cluster (default: start one)")
+    p.add_argument("--chunk", type=int, default=5, help="episodes per work unit (default 5)")
+    p.add_argument("--record", default="2", help="episodes logged per scene and agent: all, none or N (default 2)")
+    p.add_argument("--near-miss", type=float, default=None, help="near-miss clearance, m (default: half the reach)")
+    p.add_argument("--curves", action="append", default=[], metavar="LABEL=RUN_FOLDER",
+                   help="plot learning curves from a deck-sim train run folder (repeatable)")
+    p.add_argument("--out", default="runs/eval", help="results folder (default runs/eval)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_eval)
 
     _register_log_commands(sub)
     return parser

@@ -1,0 +1,117 @@
+"""DQN and A2C exported from stable-baselines3 to weights-only numpy files: the same actions as SB3's own
+``predict``, loadable by name (``make_policy("dqn" | "a2c")``, ``deck-sim run --policy dqn``), clear errors on
+corrupt files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import deck_sim
+from deck_sim.policies import LearnedPolicy, PolicyFileError, make_policy
+
+SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One short seeded SB3 run per baseline on deck 1 (its final actor.npz is the export under test)."""
+    from training.baselines import train_baseline
+
+    root = tmp_path_factory.mktemp("sb3")
+    for algo, kwargs in SHORT.items():
+        train_baseline(algo, "deck1", 64, 0, root / algo, progress=False, eval_every=0, eval_episodes=1, **kwargs)
+    return root
+
+
+def _observations(n: int = 40, seed: int = 3) -> list[dict[str, np.ndarray]]:
+    env = deck_sim.load("deck1", seed=seed, episode__predictor="none")
+    rng = np.random.default_rng(seed)
+    ts, out = env.reset(), []
+    for _ in range(n):
+        out.append(ts.observation)
+        ts = env.step(rng.uniform(-1.0, 1.0, 2))
+        if ts.last():
+            ts = env.reset()
+    return out
+
+
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_the_numpy_export_acts_as_sb3_predicts(runs, algo):
+    from training.baselines import discrete_actions, load_baseline
+
+    sb3 = load_baseline(runs / algo)
+    exported = LearnedPolicy.load(runs / algo / "actor.npz")
+    assert exported.predictor == "none" and exported.meta["algo"] == algo and exported.meta["scene"] == "deck1"
+    assert exported.head == ("argmax" if algo == "dqn" else "clip")
+    assert exported.activation == ("relu" if algo == "dqn" else "tanh")  # SB3's defaults for each
+    observations = _observations()
+    ours = np.array([exported.act(o) for o in observations])
+    # SB3's predict on the VecNormalize-normalised float32 observation, as the SB3 policy acts in training
+    x = np.stack([np.concatenate([np.ravel(o[k]) for k in sb3.keys]) for o in observations]).astype(np.float32)
+    predicted, _ = sb3.model.predict(sb3.vecnormalize.normalize_obs(x), deterministic=True)
+    if algo == "dqn":
+        theirs = discrete_actions()[predicted]
+        np.testing.assert_array_equal(ours, theirs)
+        assert len({tuple(a) for a in ours}) > 1  # not a degenerate constant, or the comparison proves little
+    else:
+        theirs = np.clip(predicted, -1.0, 1.0)
+        np.testing.assert_allclose(ours, theirs, atol=1e-5)
+        assert np.ptp(ours, axis=0).max() > 1e-3
+    assert (runs / algo / "actor_best.npz").exists()
+    assert (runs / algo / "actor.npz").stat().st_size < 1024 * 1024  # weights only
+
+
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_make_policy_and_deck_sim_run_load_the_shipped_name(runs, algo, tmp_path, monkeypatch, capsys):
+    import deck_sim.policies as policies
+    from training.cli import main
+
+    monkeypatch.setattr(policies, "TRAINED_DIR", tmp_path)
+    with pytest.raises(PolicyFileError, match=f"no shipped {algo} policy for scene 'deck1'"):
+        make_policy(algo, deck_sim.load("deck1", seed=0, episode__predictor="none"))
+    shutil.copyfile(runs / algo / "actor.npz", tmp_path / f"deck1_{algo}.npz")
+    env = deck_sim.load("deck1", seed=1000, episode__predictor="none")
+    policy = make_policy(algo, env)
+    ts = env.reset()
+    for _ in range(3):
+        action = policy.act(ts.observation)
+        assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+        ts = env.step(action)
+    assert main(["run", "--scene", "deck1", "--policy", algo, "--episodes", "1", "--no-record", "--quiet"]) == 0
+    assert "predictor none" in capsys.readouterr().out  # the baselines observe the current state only
+
+
+def test_corrupt_or_inconsistent_exports_give_clear_errors(runs, tmp_path):
+    src = runs / "dqn" / "actor.npz"
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(src.read_bytes()[:1000])
+    with pytest.raises(PolicyFileError, match="truncated.npz: not a readable actor file"):
+        LearnedPolicy.load(truncated)
+    with np.load(src) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")))
+
+    def broken(name: str, meta_changes: dict | None = None, drop: str | None = None, **array_changes):
+        path = tmp_path / name
+        out = {k: v for k, v in {**arrays, **array_changes}.items() if k != drop}
+        np.savez(path, meta=np.array(json.dumps({**meta, **(meta_changes or {})})), **out)
+        return path
+
+    with pytest.raises(PolicyFileError, match="no_table.npz: not a complete deck_sim actor.*action_table"):
+        LearnedPolicy.load(broken("no_table.npz", drop="action_table"))
+    with pytest.raises(PolicyFileError, match="short_table.npz: expected 50 inputs and 5 outputs"):
+        LearnedPolicy.load(broken("short_table.npz", action_table=arrays["action_table"][:5]))
+    with pytest.raises(PolicyFileError, match="head 'softmax'"):
+        LearnedPolicy.load(broken("head.npz", {"head": "softmax"}))
+    with pytest.raises(PolicyFileError, match="activation 'gelu'"):
+        LearnedPolicy.load(broken("act.npz", {"activation": "gelu"}))
+    with pytest.raises(PolicyFileError, match="format 'sb3/9'"):
+        LearnedPolicy.load(broken("format.npz", {"format": "sb3/9"}))
+    with pytest.raises(PolicyFileError, match="NaN or infinite"):
+        LearnedPolicy.load(broken("nan.npz", w1=np.full_like(arrays["w1"], np.nan)))
+    with pytest.raises(PolicyFileError, match="shape"):  # trained on deck 1, asked to act on deck 2
+        LearnedPolicy.load(src).act(deck_sim.load("deck2", seed=0, episode__predictor="none").reset().observation)
