@@ -1,6 +1,9 @@
-"""Episode metrics (numpy only): path length, turning angle, outcome rates.
+"""Episode metrics (numpy only): path length, turning angle, outcome rates, clearance, prediction error.
 
-Angles are radians inside; ``summarize`` reports turning angles in degrees, as the paper does.
+Angles are radians inside; ``summarize`` reports turning angles in degrees, as the paper does. ``shortest_path``
+is the reference a path length is compared with (the paper's Unity units differ from metres), ``near_misses``
+counts close passes, ``rate_interval`` and ``mean_interval`` give the 95 % confidence intervals of the evaluation
+tables.
 """
 
 from __future__ import annotations
@@ -9,6 +12,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph
 
 OUTCOMES = ("goal", "collision", "off_surface", "timeout", "diverged")
 
@@ -40,6 +45,69 @@ def turning_angle(xy: np.ndarray, min_segment: float = 0.05) -> float:
     heading = np.arctan2(seg[:, 1], seg[:, 0])
     change = (np.diff(heading) + np.pi) % (2.0 * np.pi) - np.pi
     return float(np.sum(np.abs(change)))
+
+
+def shortest_path(statics: Footprints, radius: float, bounds: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
+    """Length in metres of the shortest path from ``start`` to ``goal`` that keeps a disc of ``radius`` metres
+    clear of the static obstacles and on the surface ``bounds`` ((xmin, ymin), (xmax, ymax)).
+
+    Obstacles are taken as their enclosing octagons (``VisibilityGraph``), so the length is at most a few per cent
+    above the exact one around rounded rectangles. A start or goal inside a grown obstacle may leave or enter it
+    straight. NaN if no path exists.
+    """
+    try:
+        path = VisibilityGraph(statics, float(radius), np.asarray(bounds, dtype=np.float64)).shortest_path(
+            np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+        )
+    except NoPathError:
+        return float("nan")
+    return path_length(path)
+
+
+def near_misses(clearance: np.ndarray, threshold: float) -> int:
+    """Number of close passes in a clearance series (T,): the times it falls below ``threshold`` metres.
+
+    A pass that stays close over several steps counts once; a series starting below the threshold starts with one.
+    """
+    close = np.asarray(clearance, dtype=np.float64) < threshold
+    if close.size == 0:
+        return 0
+    return int(close[0]) + int(np.count_nonzero(close[1:] & ~close[:-1]))
+
+
+Z95 = 1.959963984540054
+"""The two-sided 95 % quantile of the standard normal distribution."""
+
+
+def rate_interval(successes: int, trials: int) -> tuple[float, float]:
+    """Wilson score 95 % interval (low, high) of a rate of ``successes`` in ``trials``; (NaN, NaN) for none.
+
+    Unlike the normal approximation it stays inside [0, 1] and does not collapse to a point at 0 % or 100 %.
+    """
+    if trials <= 0:
+        return float("nan"), float("nan")
+    if not 0 <= successes <= trials:
+        raise ValueError(f"successes must lie in [0, {trials}], got {successes}")
+    p = successes / trials
+    z2 = Z95 * Z95
+    centre = (p + z2 / (2 * trials)) / (1 + z2 / trials)
+    half = Z95 * np.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / (1 + z2 / trials)
+    return float(max(centre - half, 0.0)), float(min(centre + half, 1.0))
+
+
+def mean_interval(values: Sequence[float]) -> tuple[float, float, float]:
+    """(mean, low, high): the mean of ``values`` and its normal-approximation 95 % interval.
+
+    NaN for no values; the interval is the mean itself for one value (no spread can be estimated).
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    m = float(x.mean())
+    if x.size == 1:
+        return m, m, m
+    half = Z95 * float(x.std(ddof=1)) / np.sqrt(x.size)
+    return m, m - half, m + half
 
 
 def prediction_errors(predicted: np.ndarray, actual: np.ndarray) -> tuple[float, float, int]:
@@ -115,9 +183,7 @@ def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
     out["mean_reward"] = float(np.mean([r.reward for r in results]))
     out["path_length"] = float(np.mean([r.path_length for r in ok])) if ok else float("nan")
     out["path_ratio"] = (
-        float(np.mean([r.path_length / max(r.start_target_distance, 1e-9) for r in ok]))
-        if ok
-        else float("nan")
+        float(np.mean([r.path_length / max(r.start_target_distance, 1e-9) for r in ok])) if ok else float("nan")
     )
     out["turning_angle_deg"] = float(np.mean([r.turning_angle_deg for r in ok])) if ok else float("nan")
     out["time_to_goal"] = float(np.mean([r.sim_time for r in ok])) if ok else float("nan")

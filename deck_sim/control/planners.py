@@ -1,5 +1,12 @@
 """Planners that need no training, acting on full knowledge of the scene (``PlannerView``).
 
+Four references, each ``reset()`` at an episode's start and ``act(view) -> action`` every step (deck_sim's
+policies wrap them into ``act(observation)``): ``ScriptedPlanner`` (below, the solvability reference),
+``APFPlanner`` (an artificial potential field), ``AStarPlanner`` (A* over a visibility graph of the static
+obstacles and the movers' predicted sweeps, replanned every step) and ``MPCPlanner`` (a CasADi MPC that tracks
+the static shortest path and keeps clear of the movers' predicted trajectories). All of them read the movers'
+future from ``view.mover_future``: what the task's predictor forecast (the MPC predictor in the evaluation).
+
 ``ScriptedPlanner`` is how deck_sim knows a scene is solvable: it plans the shortest path around the static
 obstacles (visibility graph, for a disc of the agent's radius plus a margin), follows it by pure pursuit, and
 picks each step the fastest speed whose rollout along that path stays clear of every mover's predicted path
@@ -9,8 +16,9 @@ leaving its path. Numpy only (with ``deck_sim.geometry``); tested without MuJoCo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import casadi as ca
 import numpy as np
 
 from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph
@@ -174,3 +182,304 @@ def _box_distance(rel: np.ndarray, yaw: np.ndarray, half: np.ndarray, radius: np
     qy = np.abs(ly) - half[:, 1:2]
     outside = np.hypot(np.maximum(qx, 0.0), np.maximum(qy, 0.0))
     return outside + np.minimum(np.maximum(qx, qy), 0.0) - radius[:, None]
+
+
+def _slow_near_goal(view: PlannerView, direction: np.ndarray, fraction: float = 1.0) -> np.ndarray:
+    """Action along unit ``direction`` at ``fraction`` of the reach, shortened so as not to overshoot the goal."""
+    dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
+    step = min(fraction * view.reach, max(dist_goal - 0.5 * view.goal_radius, 0.0))
+    return np.clip(direction * step / view.reach, -1.0, 1.0)
+
+
+def _mover_discs(view: PlannerView) -> np.ndarray:
+    """(n,) radius of the disc enclosing each mover's footprint, metres."""
+    fp = view.movers
+    return np.hypot(fp.half[:, 0], fp.half[:, 1]) + fp.radius
+
+
+@dataclass
+class APFPlanner:
+    """Artificial potential field (Khatib, 1986): a unit pull towards the target plus the repulsion of every
+    obstacle closer than ``influence``, followed at full speed along the resulting force.
+
+    Repulsion of an obstacle at clearance rho (metres between the agent's disc and its footprint) is
+    ``repulsion * (1/rho - 1/influence) / rho**2`` along the gradient of the distance, for the static obstacles,
+    the surface's edges and each mover both where it is and where it is predicted ``mover_step`` steps ahead.
+    A pure gradient follower: it stalls in the local minima in front of wide obstacles, the method's known
+    weakness, which the evaluation is meant to show.
+    """
+
+    repulsion: float = 60.0
+    """m^2 of repulsive gain (the pull towards the target is 1), at a reach of 3 m (scaled by (reach / 3 m)^2)."""
+    influence: float = 10.0
+    """Metres of clearance beyond which an obstacle does not repel, at a reach of 3 m (scaled by reach / 3 m)."""
+    mover_step: int = 2
+    """Which predicted step of each mover repels besides its present position."""
+    min_clearance: float = 0.3
+    """Clearances below this count as this (keeps the repulsion finite), metres at a reach of 3 m."""
+
+    def reset(self) -> None:
+        """The planner has no memory."""
+
+    def _push(self, clearance: np.ndarray, away: np.ndarray, scale: float) -> np.ndarray:
+        """Summed repulsion (2,) of obstacles at ``clearance`` (k,) in unit directions ``away`` (k, 2).
+
+        Lengths scale with ``scale`` (the scene's reach over 3 m), so the field has the same shape on the square.
+        """
+        rho = np.maximum(clearance, self.min_clearance * scale)
+        rho0 = self.influence * scale
+        mag = np.where(rho < rho0, self.repulsion * scale * scale * (1.0 / rho - 1.0 / rho0) / rho**2, 0.0)
+        return (mag[:, None] * away).sum(axis=0)
+
+    @staticmethod
+    def _gradient(fp: Footprints, p: np.ndarray, h: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+        """Distances (k,) from ``p`` to the footprints and their unit gradients (k, 2) (central differences)."""
+        probes = p + np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+        d = fp.distance(probes)  # (5, k)
+        g = np.stack([d[1] - d[2], d[3] - d[4]], axis=1) / (2 * h)
+        return d[0], g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+
+    def force(self, view: PlannerView) -> np.ndarray:
+        """The net force (2,) on the agent: pull towards the target plus every repulsion."""
+        p = view.agent_xy
+        to_goal = view.target_xy - p
+        force = to_goal / max(float(np.linalg.norm(to_goal)), 1e-9)
+        r = view.agent_radius
+        scale = view.reach / 3.0
+        if len(view.statics):
+            d, g = self._gradient(view.statics, p)
+            force = force + self._push(d - r, g, scale)
+        (xmin, ymin), (xmax, ymax) = view.bounds
+        edge = np.array([p[0] - xmin, xmax - p[0], p[1] - ymin, ymax - p[1]]) - r
+        force = force + self._push(edge, np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), scale)
+        fp = view.movers
+        if len(fp):
+            d, g = self._gradient(fp, p)
+            force = force + self._push(d - r, g, scale)
+            if view.mover_future.shape[1] > 0:
+                k = min(self.mover_step, view.mover_future.shape[1]) - 1
+                ahead = Footprints(view.mover_future[:, k], fp.half, fp.yaw, fp.radius)
+                d, g = self._gradient(ahead, p)
+                force = force + self._push(d - r, g, scale)
+        return force
+
+    def act(self, view: PlannerView) -> np.ndarray:
+        """Action (2,) in [-1, 1]^2: full reach along the force (less near the goal)."""
+        f = self.force(view)
+        return _slow_near_goal(view, f / max(float(np.linalg.norm(f)), 1e-9))
+
+
+@dataclass
+class AStarPlanner:
+    """A* over a visibility graph of the static obstacles and the movers' predicted sweeps, replanned each step.
+
+    Every step each mover becomes one rounded rectangle covering its footprint now and at the end of the
+    predicted horizon (its sweep), the graph is rebuilt over those and the static obstacles (grown by the
+    agent's radius and ``margin``), and the agent pursues the shortest path at full speed. With no path (boxed in
+    by sweeps) it stands still for that step. It avoids movers only by going round where they will be, never
+    by waiting: the difference from ``ScriptedPlanner``.
+    """
+
+    margin: float = 2.0
+    """Metres kept from static obstacles beyond the agent's radius."""
+    mover_margin: float = 1.0
+    """Metres added to every mover's sweep (beyond ``margin``)."""
+    sweep_steps: int = 6
+    """Predicted steps each sweep covers (at most the predictor's horizon)."""
+    lookahead: float = 8.0
+    """Pure-pursuit carrot distance along the path, metres (scaled by reach / 3 m)."""
+
+    def reset(self) -> None:
+        """The planner has no memory."""
+
+    def sweeps(self, view: PlannerView) -> Footprints:
+        """One footprint per mover covering it now and ``sweep_steps`` predicted steps ahead."""
+        fp = view.movers
+        if len(fp) == 0:
+            return Footprints.empty()
+        if view.mover_future.shape[1] == 0:
+            return fp.inflate(self.mover_margin)
+        end = view.mover_future[:, min(self.sweep_steps, view.mover_future.shape[1]) - 1]
+        delta = end - fp.centers
+        length = np.hypot(delta[:, 0], delta[:, 1])
+        moving = length > 0.5
+        size = np.max(fp.half, axis=1)
+        half = np.where(moving[:, None], np.stack([length / 2 + size, size], axis=1), fp.half)
+        yaw = np.where(moving, np.arctan2(delta[:, 1], delta[:, 0]), fp.yaw)
+        centers = np.where(moving[:, None], (fp.centers + end) / 2, fp.centers)
+        return Footprints(centers, half, yaw, fp.radius + self.mover_margin)
+
+    def path(self, view: PlannerView) -> np.ndarray | None:
+        """Shortest path (m, 2) around the statics and the sweeps, or None if there is none."""
+        obstacles = Footprints.concatenate([view.statics, self.sweeps(view)])
+        graph = VisibilityGraph(obstacles, view.agent_radius + self.margin, view.bounds)
+        try:
+            return graph.shortest_path(view.agent_xy, view.target_xy)
+        except NoPathError:
+            return None
+
+    def act(self, view: PlannerView) -> np.ndarray:
+        """Action (2,) in [-1, 1]^2: pursue the replanned path at full reach; (0, 0) without a path."""
+        path = self.path(view)
+        if path is None:
+            return np.zeros(2)
+        carrot = _point_along(path, self.lookahead * max(view.reach / 3.0, 0.25))
+        to_carrot = carrot - view.agent_xy
+        return _slow_near_goal(view, to_carrot / max(float(np.linalg.norm(to_carrot)), 1e-9))
+
+
+@dataclass
+class MPCPlanner:
+    """Model-predictive planner (CasADi + IPOPT): the agent's next ``horizon`` displacements optimised each step.
+
+    The agent is a point moving by ``reach * u_k`` per decision (|u_k| <= 1, the action space). The cost tracks a
+    reference that advances at full speed along the shortest path around the static obstacles (a visibility
+    graph built once per episode), penalises effort changes, and adds squared-hinge penalties for (a) entering
+    the disc of radius agent + mover + ``mover_margin`` around each mover's predicted position at the same step,
+    (b) crossing the half-plane that separates the agent from each of the ``n_statics`` nearest static
+    obstacles (linearised at the present position, kept ``margin`` away). The first displacement is the action;
+    the rest warm-start the next solve. One NLP is built per (horizon, number of movers) and reused.
+    """
+
+    margin: float = 1.0
+    """Metres kept from static obstacles beyond the agent's radius (the reference path keeps ``path_margin``)."""
+    path_margin: float = 2.5
+    """Metres the reference path keeps from static obstacles beyond the agent's radius."""
+    mover_margin: float = 1.5
+    """Metres kept between the agent's and each mover's enclosing discs."""
+    n_statics: int = 6
+    """Nearest static obstacles constrained by half-planes."""
+    w_track: float = 1.0
+    w_smooth: float = 2.0
+    w_obstacle: float = 200.0
+    max_iter: int = 60
+    _solvers: dict = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous episode's path and warm start."""
+        self._graph: VisibilityGraph | None = None
+        self._graph_key: int | None = None
+        self._warm: np.ndarray | None = None
+        self.last_status: str = ""
+
+    def _solver(self, horizon: int, movers: int) -> ca.Function:
+        key = (horizon, movers)
+        if key not in self._solvers:
+            u = ca.SX.sym("u", 2, horizon)
+            p0 = ca.SX.sym("p0", 2)
+            reach = ca.SX.sym("reach")
+            ref = ca.SX.sym("ref", 2, horizon)
+            u_prev = ca.SX.sym("u_prev", 2)
+            mov = ca.SX.sym("mov", 2, horizon * movers)  # column k * movers + j: mover j at step k + 1
+            safe = ca.SX.sym("safe", movers)
+            nrm = ca.SX.sym("nrm", 2, self.n_statics)
+            off = ca.SX.sym("off", self.n_statics)
+            cost, g = 0, []
+            p, last = p0, u_prev
+            for k in range(horizon):
+                p = p + reach * u[:, k]
+                cost += self.w_track * ca.sumsqr(p - ref[:, k]) / (reach * reach)
+                cost += self.w_smooth * ca.sumsqr(u[:, k] - last)
+                last = u[:, k]
+                for j in range(movers):
+                    gap = ca.sqrt(ca.sumsqr(p - mov[:, k * movers + j]) + 1e-6)
+                    cost += self.w_obstacle * ca.fmax(safe[j] - gap, 0) ** 2
+                for i in range(self.n_statics):
+                    cost += self.w_obstacle * ca.fmax(off[i] - ca.dot(nrm[:, i], p), 0) ** 2
+                g.append(ca.sumsqr(u[:, k]))
+            params = ca.vertcat(p0, reach, ca.vec(ref), u_prev, ca.vec(mov), safe, ca.vec(nrm), off)
+            nlp = {"x": ca.vec(u), "p": params, "f": cost, "g": ca.vertcat(*g)}
+            opts = {
+                "ipopt.print_level": 0,
+                "ipopt.sb": "yes",
+                "print_time": False,
+                "ipopt.max_iter": self.max_iter,
+                "ipopt.tol": 1e-4,
+                "ipopt.acceptable_tol": 1e-2,
+                "ipopt.warm_start_init_point": "yes",
+            }
+            self._solvers[key] = ca.nlpsol("mpc_planner", "ipopt", nlp, opts)
+        return self._solvers[key]
+
+    def reference(self, view: PlannerView, horizon: int) -> np.ndarray:
+        """(horizon, 2) points at full reach per step along the static shortest path (held at the goal)."""
+        key = id(view.statics)
+        if self._graph is None or key != self._graph_key:
+            self._graph = VisibilityGraph(view.statics, view.agent_radius + self.path_margin, view.bounds)
+            self._graph_key = key
+        try:
+            path = self._graph.shortest_path(view.agent_xy, view.target_xy)
+        except NoPathError:
+            path = np.stack([view.agent_xy, view.target_xy])
+        seg = np.diff(path, axis=0)
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+        s = np.minimum(view.reach * np.arange(1, horizon + 1), cum[-1])
+        return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
+
+    def _half_planes(self, view: PlannerView) -> tuple[np.ndarray, np.ndarray]:
+        """Normals (n_statics, 2) and offsets of the separating half-planes n.x >= offset of the nearest statics."""
+        nrm = np.zeros((self.n_statics, 2))
+        off = np.full(self.n_statics, -1e6)  # unused rows never bind
+        if len(view.statics) == 0:
+            return nrm, off
+        p = view.agent_xy
+        d, grad = APFPlanner._gradient(view.statics, p)
+        order = np.argsort(d)[: self.n_statics]
+        for row, i in enumerate(order):
+            if d[i] <= 0.0:  # inside (should not happen): no usable separating plane
+                continue
+            closest = p - d[i] * grad[i]
+            nrm[row] = grad[i]
+            off[row] = float(grad[i] @ closest) + view.agent_radius + self.margin
+        return nrm, off
+
+    def act(self, view: PlannerView) -> np.ndarray:
+        """Action (2,): the first displacement of the optimised plan (the reference's direction if IPOPT fails)."""
+        future = view.mover_future
+        horizon = future.shape[1] if future.shape[1] > 0 else 10
+        n = len(view.movers)
+        ref = self.reference(view, horizon)
+        if future.shape[1] == 0:  # no prediction: the movers stay where they are
+            future = np.repeat(view.movers.centers[:, None], horizon, axis=1)
+        safe = view.agent_radius + _mover_discs(view) + self.mover_margin
+        nrm, off = self._half_planes(view)
+        u_prev = np.zeros(2) if self._warm is None else self._warm[:, 0]
+        if self._warm is None:
+            direction = ref - np.vstack([view.agent_xy, ref[:-1]])
+            x0 = np.clip(direction / view.reach, -1.0, 1.0).T
+        else:
+            x0 = np.concatenate([self._warm[:, 1:], self._warm[:, -1:]], axis=1)
+        params = np.concatenate(
+            [
+                view.agent_xy,
+                [view.reach],
+                ref.T.ravel(order="F"),
+                u_prev,
+                future.transpose(1, 0, 2).reshape(-1, 2).T.ravel(order="F"),
+                safe,
+                nrm.T.ravel(order="F"),
+                off,
+            ]
+        )
+        solver = self._solver(horizon, n)
+        sol = solver(x0=x0.ravel(order="F"), p=params, lbx=-1.0, ubx=1.0, lbg=0.0, ubg=1.0)
+        self.last_status = solver.stats()["return_status"]
+        u = np.asarray(sol["x"]).reshape(2, horizon, order="F")
+        if not np.all(np.isfinite(u)):
+            self._warm = None
+            step = ref[0] - view.agent_xy
+            return _slow_near_goal(view, step / max(float(np.linalg.norm(step)), 1e-9))
+        self._warm = u
+        dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
+        first = u[:, 0]
+        length = float(np.linalg.norm(first)) * view.reach
+        limit = max(dist_goal - 0.5 * view.goal_radius, 0.0)
+        if length > limit:
+            first = first * (limit / max(length, 1e-9))
+        return np.clip(first, -1.0, 1.0)
+
+
+__all__ = ["APFPlanner", "AStarPlanner", "MPCPlanner", "ScriptedPlanner"]

@@ -1,0 +1,126 @@
+"""Task-suite evaluation: backends agree, reports hold what was measured, bad requests fail clearly."""
+
+import csv
+import json
+import math
+
+import pytest
+
+from deck_sim.scenes import SceneSpecError
+from training.cli import main
+from training.evaluate import EvalConfig, EvalError, evaluate, write_report
+
+SMALL = dict(agents=("mddpg", "apf"), scenes=("deck1",), episodes=3, chunk=2, workers=2, record="none")
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return evaluate(EvalConfig(backend="serial", **SMALL))
+
+
+def test_process_pool_gives_the_serial_results(serial):
+    pooled = evaluate(EvalConfig(backend="process", **SMALL))
+    assert pooled.episodes == serial.episodes
+    assert pooled.summaries == serial.summaries
+
+
+def test_ray_gives_the_serial_results(serial):
+    pytest.importorskip("ray")
+    remote = evaluate(EvalConfig(backend="ray", **SMALL))
+    assert remote.episodes == serial.episodes
+
+
+def test_episodes_are_seeded_per_index_and_below_training_seeds(serial):
+    from training.config import TRAIN_SEED_BASE
+
+    rows = serial.episodes
+    assert [(r["agent"], r["episode"]) for r in rows] == [(a, i) for a in ("mddpg", "apf") for i in range(3)]
+    assert [r["seed"] for r in rows[:3]] == [100_000, 100_001, 100_002]
+    # the same seed is the same layout for every agent
+    assert [r["start_target_distance"] for r in rows[:3]] == [r["start_target_distance"] for r in rows[3:]]
+    assert all(r["seed"] < TRAIN_SEED_BASE for r in rows)
+    with pytest.raises(EvalError, match="below every training seed"):
+        EvalConfig(agents=("apf",), scenes=("deck1",), seed=TRAIN_SEED_BASE - 1, episodes=2).validate()
+
+
+def test_summaries_follow_the_episodes(serial):
+    for s in serial.summaries:
+        mine = [r for r in serial.episodes if r["agent"] == s["agent"]]
+        wins = [r for r in mine if r["outcome"] == "goal"]
+        assert s["goal_rate"] == len(wins) / len(mine)
+        lo, hi = s["goal_ci"]
+        assert 0.0 <= lo <= s["goal_rate"] <= hi <= 1.0
+        if wins:
+            assert s["path_ratio"] == pytest.approx(
+                sum(r["path_length"] / r["shortest_path"] for r in wins) / len(wins)
+            )
+            assert s["path_ratio"] >= 0.98  # the reference is a lower bound (up to the graph's 5 cm node margin)
+        assert s["predictor"] == "mpc"
+        assert s["ade"] > 0 and s["fde"] >= s["ade"]
+
+
+def test_the_report_files_hold_the_results(serial, tmp_path):
+    paths = write_report(serial, tmp_path)
+    data = json.loads(paths["summary.json"].read_text())
+    assert data["config"]["episodes"] == 3 and len(data["episodes"]) == 6
+    with open(paths["episodes.csv"]) as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["reward"]) for r in rows] == [r["reward"] for r in serial.episodes]
+    md = paths["results.md"].read_text()
+    mddpg = serial.summary("deck1", "mddpg")
+    assert f"| mddpg | {100 * mddpg['goal_rate']:.1f} (" in md
+    assert "98" in md  # the paper's deck 1 MDDPG success beside ours
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+@pytest.mark.parametrize(
+    "change,error,match",
+    [
+        ({"agents": ("telepathic",)}, EvalError, "unknown agent 'telepathic'"),
+        ({"agents": ("apf", "apf")}, EvalError, "repeat"),
+        ({"scenes": ("deck9",)}, SceneSpecError, "deck9"),
+        ({"episodes": 0}, EvalError, "episodes"),
+        ({"backend": "slurm"}, EvalError, "unknown backend 'slurm'"),
+        ({"record": "some"}, EvalError, "record"),
+    ],
+)
+def test_bad_requests_name_the_problem(change, error, match):
+    cfg = EvalConfig(**{**dict(agents=("apf",), scenes=("deck1",), episodes=2), **change})
+    with pytest.raises(error, match=match):
+        cfg.validate()
+
+
+def test_a_missing_actor_file_fails_before_any_episode(tmp_path):
+    from deck_sim.policies import PolicyFileError
+
+    with pytest.raises(PolicyFileError, match="no such actor file"):
+        evaluate(EvalConfig(agents=(f"mine={tmp_path / 'none.npz'}",), scenes=("deck1",), episodes=1))
+
+
+def test_cli_eval_writes_tables_logs_and_trajectory_plots(tmp_path, capsys):
+    out = tmp_path / "ev"
+    rc = main(
+        ["eval", "--agents", "astar,random", "--scenes", "deck1", "--episodes", "2", "--record", "1",
+         "--backend", "serial", "--out", str(out), "--quiet"]
+    )  # fmt: skip
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "Success rate" in text and "| astar |" in text
+    for name in ("summary.json", "summary.csv", "episodes.csv", "results.md"):
+        assert (out / name).exists()
+    logs = sorted(p.name for p in (out / "logs").glob("*.mcap"))
+    assert logs == ["deck1-astar-0000.mcap", "deck1-random-0000.mcap"]
+    assert sorted(p.name for p in (out / "trajectories").glob("*.png")) == [
+        "deck1-astar-episode0.png",
+        "deck1-random-episode0.png",
+    ]
+    from deck_sim.recording import EpisodeLog
+
+    assert len(EpisodeLog(out / "logs" / "deck1-astar-0000.mcap").episodes) == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert all(not (isinstance(v, float) and math.isnan(v)) for s in summary["summaries"] for v in s.values())
+
+
+def test_cli_eval_rejects_a_bad_agent_with_exit_code_2(capsys):
+    assert main(["eval", "--agents", "apf,nope", "--scenes", "deck1", "--episodes", "1", "--quiet"]) == 2
+    assert "unknown agent 'nope'" in capsys.readouterr().err

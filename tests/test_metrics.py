@@ -1,0 +1,113 @@
+"""Episode metrics on hand-made paths and layouts (numpy only)."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from deck_sim.geometry import Footprints
+from deck_sim.metrics import (
+    mean_interval,
+    near_misses,
+    path_length,
+    rate_interval,
+    shortest_path,
+    turning_angle,
+)
+
+BOUNDS = np.array([[-100.0, -100.0], [100.0, 100.0]])
+
+
+def box(cx: float, cy: float, hx: float, hy: float) -> Footprints:
+    return Footprints(np.array([[cx, cy]]), np.array([[hx, hy]]), np.zeros(1), np.zeros(1))
+
+
+def test_a_straight_path_has_its_length_and_no_turn():
+    xy = np.column_stack([np.linspace(0, 30, 31), np.zeros(31)])
+    assert path_length(xy) == pytest.approx(30.0)
+    assert turning_angle(xy) == pytest.approx(0.0)
+
+
+def test_a_right_angle_turn_turns_ninety_degrees():
+    xy = np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0], [10.0, 5.0], [10.0, 10.0]])
+    assert path_length(xy) == pytest.approx(20.0)
+    assert math.degrees(turning_angle(xy)) == pytest.approx(90.0)
+
+
+def test_standing_still_adds_no_turn():
+    jitter = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01], [0.01, 0.01], [10.0, 0.0], [20.0, 0.0]])
+    assert turning_angle(jitter) == pytest.approx(0.0)
+
+
+def test_shortest_path_goes_round_a_wall_by_its_corner():
+    # a wall from y=-5 to y=5 at x=0, 2 m thick; a point agent from (-10, 0) to (10, 0) passes its corners
+    wall = box(0.0, 0.0, 1.0, 5.0)
+    length = shortest_path(wall, 0.0, BOUNDS, np.array([-10.0, 0.0]), np.array([10.0, 0.0]))
+    expected = 2 * math.hypot(9.0, 5.0) + 2.0
+    # graph nodes sit 5 cm outside the octagons' vertices (VisibilityGraph.node_margin): a few cm longer
+    assert expected <= length <= expected + 0.1
+
+
+def test_shortest_path_is_straight_in_the_open_and_nan_when_walled_in():
+    empty = Footprints.empty()
+    assert shortest_path(empty, 1.0, BOUNDS, np.zeros(2), np.array([3.0, 4.0])) == pytest.approx(5.0)
+    # a wall across the whole surface: no way through for a disc of 1 m
+    across = box(0.0, 0.0, 1.0, 100.0)
+    assert math.isnan(shortest_path(across, 1.0, BOUNDS, np.array([-10.0, 0.0]), np.array([10.0, 0.0])))
+
+
+def test_a_path_that_collides_shows_in_clearance_and_near_misses():
+    # clearance along a pass that touches an obstacle (negative: overlap) and a later close pass
+    clearance = np.array([8.0, 5.0, 1.0, -0.4, 0.5, 3.0, 6.0, 1.2, 0.9, 4.0])
+    assert near_misses(clearance, 1.0) == 2  # the collision pass and the 0.9 m pass count once each
+    assert near_misses(clearance, 0.0) == 1
+    assert near_misses(np.array([0.2, 0.3, 5.0]), 1.0) == 1  # starts close: counts
+    assert near_misses(np.array([]), 1.0) == 0
+
+
+def test_wilson_intervals_by_hand():
+    lo, hi = rate_interval(5, 10)
+    assert (lo, hi) == pytest.approx((0.2366, 0.7634), abs=1e-4)
+    lo, hi = rate_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)
+    assert rate_interval(10, 10)[1] == pytest.approx(1.0)
+    assert all(math.isnan(v) for v in rate_interval(0, 0))
+    with pytest.raises(ValueError, match="successes"):
+        rate_interval(11, 10)
+
+
+def test_mean_interval_by_hand():
+    m, lo, hi = mean_interval([1.0, 2.0, 3.0, 4.0])
+    half = 1.959963984540054 * np.std([1, 2, 3, 4], ddof=1) / 2.0
+    assert (m, lo, hi) == pytest.approx((2.5, 2.5 - half, 2.5 + half))
+    assert mean_interval([7.0]) == (7.0, 7.0, 7.0)
+    assert all(math.isnan(v) for v in mean_interval([]))
+
+
+coords = st.floats(-50, 50, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(coords, coords), min_size=2, max_size=12), st.floats(-math.pi, math.pi), coords, coords)
+def test_length_and_turning_do_not_depend_on_the_frame(points, yaw, dx, dy):
+    xy = np.array(points)
+    c, s = math.cos(yaw), math.sin(yaw)
+    moved = xy @ np.array([[c, s], [-s, c]]) + np.array([dx, dy])
+    assert path_length(moved) == pytest.approx(path_length(xy), rel=1e-9, abs=1e-9)
+    assert turning_angle(moved) == pytest.approx(turning_angle(xy), rel=1e-6, abs=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(coords, coords, st.floats(0.5, 8), st.floats(0.5, 8), st.floats(0.0, 2.0))
+def test_shortest_path_lies_between_the_straight_line_and_a_detour(cx, cy, hx, hy, radius):
+    start, goal = np.array([-70.0, 0.0]), np.array([70.0, 0.0])
+    fp = box(cx, cy, hx, hy)
+    length = shortest_path(fp, radius, BOUNDS, start, goal)
+    straight = float(np.linalg.norm(goal - start))
+    assert length >= straight - 1e-9
+    # going round over the top of the box's grown octagon is always possible and no shorter
+    top = cy + hy + radius + 1.0 + (hx + radius)  # above the octagon's diagonal faces
+    detour = path_length(np.array([start, [cx - hx - radius - 1, top], [cx + hx + radius + 1, top], goal]))
+    assert length <= detour + 1e-6
