@@ -89,3 +89,24 @@ def test_unreachable_goal_raises():
     g = VisibilityGraph(ring, clearance=0.5, bounds=np.array([[-50, -50], [50, 50]]))
     with pytest.raises(NoPathError):
         g.shortest_path(np.array([20.0, 20.0]), np.array([0.0, 0.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_enclosing_disc_prefilter_gives_the_exact_segment_test(seed):
+    from deck_sim.geometry import segments_blocked
+
+    rng = np.random.default_rng(seed)
+    k = int(rng.integers(1, 25))
+    fp = Footprints(
+        rng.uniform(-40, 40, (k, 2)), rng.uniform(0.1, 8, (k, 2)), rng.uniform(-3, 3, k), rng.uniform(0, 2, k)
+    )
+    grown = fp.inflate(float(rng.uniform(0, 3)))
+    normals, offsets = grown.octagons()
+    radii = np.linalg.norm(grown.octagon_vertices() - grown.centers[:, None], axis=2).max(axis=1)
+    a = rng.uniform(-50, 50, (120, 2))
+    b = a + rng.normal(0, 25, (120, 2))
+    b[:4] = a[:4]  # zero-length segments
+    exact = segments_blocked(a, b, normals, offsets)
+    assert exact.any() and not exact.all()
+    np.testing.assert_array_equal(segments_blocked(a, b, normals, offsets, bounds=(grown.centers, radii)), exact)
