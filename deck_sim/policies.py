@@ -2,7 +2,9 @@
 
 ``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (it plans around the
 observation's predicted mover positions: the ``oracle`` predictor shows it the movers' true future, ``mpc`` the
-MPC forecast); ``random`` and ``zero`` are references. ``LearnedPolicy`` runs an actor exported by ``training``
+MPC forecast); ``apf``, ``astar`` and ``mpc`` are the classical references of ``deck_sim.control.planners`` on
+the same view (the evaluation runs them with the MPC predictor); ``random`` and ``zero`` are references.
+``LearnedPolicy`` runs an actor exported by ``training``
 (``deck-sim train``) from a weights-only ``.npz`` file with numpy alone; ``mddpg``, ``ddpg``, ``dqn`` and ``a2c``
 name the policies shipped in ``deck_sim/trained/`` for the environment's scene. The DQN and A2C files are the
 stable-baselines3 networks exported to the same format (``training.baselines.export_sb3``), so evaluating them
@@ -22,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 from dm_control import composer
 
-from deck_sim.control.planners import ScriptedPlanner
+from deck_sim.control.planners import APFPlanner, AStarPlanner, MPCPlanner, ScriptedPlanner
 
 
 class Policy(Protocol):
@@ -38,7 +40,9 @@ class Policy(Protocol):
 class ScriptedPolicy:
     """The full-knowledge ``ScriptedPlanner`` reading the task's privileged ``planner_view``."""
 
-    def __init__(self, env: composer.Environment, planner: ScriptedPlanner | None = None) -> None:
+    def __init__(
+        self, env: composer.Environment, planner: ScriptedPlanner | APFPlanner | AStarPlanner | MPCPlanner | None = None
+    ) -> None:
         self._env = env
         self.planner = planner or ScriptedPlanner()
 
@@ -221,7 +225,9 @@ class LearnedPolicy:
 
 
 SHIPPED_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
-POLICY_NAMES = ("scripted", "random", "zero", *SHIPPED_ALGOS)
+CLASSICAL = {"apf": APFPlanner, "astar": AStarPlanner, "mpc": MPCPlanner}
+"""The classical references: planners on the task's ``planner_view`` that need no training."""
+POLICY_NAMES = ("scripted", *CLASSICAL, "random", "zero", *SHIPPED_ALGOS)
 
 
 def shipped_policy_path(algo: str, scene: str) -> Path:
@@ -246,10 +252,13 @@ def policy_file(name: str, scene: str) -> Path | None:
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``: a reference policy, a shipped learned one (``mddpg``, ``ddpg``,
-    ``dqn``, ``a2c``) or an actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
+    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``apf``, ``astar``, ``mpc``,
+    ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an actor file (a path
+    ending in ``.npz``); raises ``ValueError`` listing the known names."""
     if name == "scripted":
         return ScriptedPolicy(env)
+    if name in CLASSICAL:
+        return ScriptedPolicy(env, CLASSICAL[name]())
     if name == "random":
         return RandomPolicy(seed)
     if name == "zero":

@@ -92,3 +92,12 @@ def test_every_reference_reaches_deck1_targets_among_movers(name, planner):
         env.random_state.seed(100_000 + k)
         outcomes.append(run_episode(env, policy, k).outcome)
     assert outcomes.count("goal") >= 1, outcomes
+
+
+def test_cli_runs_a_classical_reference_with_the_mpc_predictor(tmp_path, capsys):
+    from training.cli import main
+
+    rc = main(["run", "--scene", "deck1", "--policy", "apf", "--episodes", "1", "--seed", "3", "--no-record",
+               "--out", str(tmp_path), "--quiet"])  # fmt: skip
+    assert rc == 0
+    assert "policy apf, predictor mpc" in capsys.readouterr().out

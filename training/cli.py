@@ -72,11 +72,14 @@ def _format_summary(name: str, policy: str, predictor: str, summary: dict[str, f
 
 
 def _default_predictor(policy: str, scene: str) -> str | None:
-    """The predictor a policy runs with unless told otherwise: the oracle for the scripted planner, the one a
-    learned actor was trained on, else the scene's own."""
+    """The predictor a policy runs with unless told otherwise: the oracle for the scripted planner, the MPC
+    predictor for the classical references, the one a learned actor was trained on, else the scene's own."""
     if policy == "scripted":
         return "oracle"
-    from deck_sim.policies import LearnedPolicy, policy_file
+    from deck_sim.policies import CLASSICAL, LearnedPolicy, policy_file
+
+    if policy in CLASSICAL:
+        return "mpc"
 
     path = policy_file(policy, Path(scene).stem)
     return LearnedPolicy.load(path).predictor if path is not None else None
@@ -515,7 +518,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="play episodes with a policy and report the metrics")
     p.add_argument("--scene", default="deck1", help="scene name or TOML path (default deck1)")
     p.add_argument("--policy", default="scripted",
-                   help="scripted (full knowledge), random, zero, a shipped learned policy (mddpg, ddpg, dqn, a2c) "
+                   help="scripted (full knowledge), apf, astar, mpc (classical references), random, zero, a shipped "
+                        "learned policy (mddpg, ddpg, dqn, a2c) "
                         "or an actor .npz file")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=0, help="seeds layouts and movers (default 0)")

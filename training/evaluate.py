@@ -203,15 +203,11 @@ def agent_predictor(agent: str, scene: str) -> str | None:
 
 def make_agent(agent: str, env: Any, seed: int = 0) -> Any:
     """The policy (``reset()``, ``act(observation)``) of ``agent`` acting in ``env``."""
-    from deck_sim.control.planners import APFPlanner, AStarPlanner, MPCPlanner
-    from deck_sim.policies import LearnedPolicy, ScriptedPolicy, make_policy
+    from deck_sim.policies import LearnedPolicy, make_policy
 
     label, sep, path = agent.partition("=")
     if sep:
         return LearnedPolicy.load(path)
-    planners = {"apf": APFPlanner, "astar": AStarPlanner, "mpc": MPCPlanner}
-    if agent in planners:
-        return ScriptedPolicy(env, planners[agent]())
     return make_policy(agent, env, seed=seed)
 
 
