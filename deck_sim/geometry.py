@@ -88,6 +88,21 @@ class Footprints:
         inside = np.minimum(np.maximum(qx, qy), 0.0)
         return outside + inside - self.radius
 
+    def nearest_points(self, point: np.ndarray) -> np.ndarray:
+        """(k, 2) the point of each footprint's boundary nearest to ``point`` (2,); ``point`` itself if inside."""
+        rel = np.asarray(point, dtype=np.float64)[None, :] - self.centers
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        lx = rel[:, 0] * c + rel[:, 1] * s
+        ly = -rel[:, 0] * s + rel[:, 1] * c
+        qx, qy = np.clip(lx, -self.half[:, 0], self.half[:, 0]), np.clip(ly, -self.half[:, 1], self.half[:, 1])
+        dx, dy = lx - qx, ly - qy
+        gap = np.hypot(dx, dy)
+        outside = gap > self.radius
+        scale = np.where(outside, self.radius / np.where(gap > 0, gap, 1.0), 0.0)
+        nx = np.where(outside, qx + dx * scale, lx)
+        ny = np.where(outside, qy + dy * scale, ly)
+        return self.centers + np.stack([nx * c - ny * s, nx * s + ny * c], axis=1)
+
     def octagons(self, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Half-planes of the octagon enclosing each footprint grown by ``margin``.
 

@@ -110,3 +110,17 @@ def test_the_enclosing_disc_prefilter_gives_the_exact_segment_test(seed):
     exact = segments_blocked(a, b, normals, offsets)
     assert exact.any() and not exact.all()
     np.testing.assert_array_equal(segments_blocked(a, b, normals, offsets, bounds=(grown.centers, radii)), exact)
+
+
+@settings(max_examples=80, deadline=None)
+@given(cx=coord, cy=coord, hx=size, hy=size, yaw=angle, r=st.floats(0, 3), px=coord, py=coord)
+def test_the_nearest_boundary_point_lies_at_the_footprints_distance(cx, cy, hx, hy, yaw, r, px, py):
+    fp = box(cx, cy, hx, hy, yaw, r)
+    p = np.array([px, py])
+    q = fp.nearest_points(p)[0]
+    d = fp.distance(p)[0, 0]
+    if d > 1e-9:
+        assert np.linalg.norm(q - p) == pytest.approx(d, rel=1e-6, abs=1e-6)
+        assert fp.distance(q)[0, 0] == pytest.approx(0.0, abs=1e-6)
+    else:
+        np.testing.assert_allclose(q, p, atol=1e-9)
