@@ -4,13 +4,16 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 - ``mddpg`` and ``ddpg``: one ``deck-sim train --algo <algo> --preset tuned`` run (``training.loop.Trainer``,
   recipe ``arm_config("tuned-<algo>", ...)``) in ``--out/<scene>-tuned-<algo>-seed<seed>`` (the folder
-  ``benchmarks/learning.py`` reads for that arm), for ``DDPG_STEPS[scene]`` steps. DDPG is MDDPG without
-  prediction (predictor ``none``) at the same budget.
+  ``benchmarks/learning.py`` reads for that arm). DDPG is MDDPG without prediction (predictor ``none``).
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
-  ``--out/<scene>-<algo>-seed<seed>``, for ``SB3_STEPS`` steps (they step about ten times faster than the DDPG
-  trainer here, so they get 100,000 steps in under a third of its wall-clock time), held-out evaluation every
-  10,000 steps on 50 episodes; the networks are exported to numpy (``training.baselines.export_sb3``), so the
-  shipped files need neither stable-baselines3 nor ``training``.
+  ``--out/<scene>-<algo>-seed<seed>``, held-out evaluation every 10,000 steps on 50 episodes; the networks are
+  exported to numpy (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor
+  ``training``.
+
+Every agent of a scene trains for the same number of environment steps, ``SHIP_STEPS[scene]`` (the budget of
+the first shipped MDDPG actors), so the four are compared at equal budget. DQN and A2C step two to five times
+faster than the DDPG trainer on this machine (about 250 steps/s alone, 80-100 beside other training), so they
+would afford more steps in the same wall-clock time; ``--steps`` sets another budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 actor with the best periodic held-out evaluation (seed-500 stream) is then measured on ``--episodes`` further
@@ -57,10 +60,8 @@ from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy  # noqa:
 from deck_sim.rollout import run_episode  # noqa: E402
 
 HELD_OUT_SEED = 1000
-DDPG_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
-"""Training steps of the shipped MDDPG and DDPG actors per scene (the same budget for both)."""
-SB3_STEPS = 100_000
-"""Training steps of the shipped DQN and A2C models (every scene)."""
+SHIP_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
+"""Training steps of every shipped agent of a scene (MDDPG, DDPG, DQN, A2C: equal budget)."""
 SB3_EVAL_EVERY, SB3_EVAL_EPISODES = 10_000, 50
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
 
@@ -79,8 +80,8 @@ def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
     return out / f"{scene}-{algo}-seed{seed}"
 
 
-def default_steps(scene: str, algo: str) -> int:
-    return DDPG_STEPS.get(scene, 60_000) if algo in ("mddpg", "ddpg") else SB3_STEPS
+def default_steps(scene: str) -> int:
+    return SHIP_STEPS.get(scene, 60_000)
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
@@ -129,8 +130,7 @@ def main() -> None:
     parser.add_argument("--scenes", default="deck1,deck2,square")
     parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
     parser.add_argument("--steps", type=int, default=None,
-                        help=f"training steps for every agent (default: MDDPG and DDPG {DDPG_STEPS}, "
-                             f"DQN and A2C {SB3_STEPS})")
+                        help=f"training steps for every agent (default per scene: {SHIP_STEPS})")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
@@ -162,7 +162,7 @@ def main() -> None:
             cost = 0 if args.evaluate_only or (run / "actor.npz").exists() else 1 if algo in ("dqn", "a2c") else 2
             work.append((cost, len(work), scene, algo, run, dest))
     for _, _, scene, algo, run, dest in sorted(work):
-        steps = args.steps if args.steps is not None else default_steps(scene, algo)
+        steps = args.steps if args.steps is not None else default_steps(scene)
         if args.evaluate_only:
             if not dest.exists():
                 raise SystemExit(f"--evaluate-only: no shipped policy {dest}")

@@ -115,3 +115,34 @@ def test_corrupt_or_inconsistent_exports_give_clear_errors(runs, tmp_path):
         LearnedPolicy.load(broken("nan.npz", w1=np.full_like(arrays["w1"], np.nan)))
     with pytest.raises(PolicyFileError, match="shape"):  # trained on deck 1, asked to act on deck 2
         LearnedPolicy.load(src).act(deck_sim.load("deck2", seed=0, episode__predictor="none").reset().observation)
+
+
+def _shipped_agents() -> dict[str, dict[str, dict]]:
+    """``deck_sim/trained/results.json`` as ``{scene: {algo: figures}}`` (scripts/train_shipped.py writes it)."""
+    from deck_sim.policies import TRAINED_DIR
+
+    report = json.loads((TRAINED_DIR / "results.json").read_text())
+    return {scene: ({"mddpg": r} if "success" in r else r) for scene, r in report.items()}
+
+
+@pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
+def test_every_measured_agent_is_shipped_small_and_acts_by_name(scene):
+    from deck_sim.policies import SHIPPED_ALGOS, shipped_policy_path
+
+    agents = _shipped_agents()[scene]
+    assert set(agents) <= set(SHIPPED_ALGOS)
+    env = deck_sim.load(scene, seed=1000, episode__predictor="none")
+    for algo, record in agents.items():
+        if algo == "mddpg":  # acts with the MPC forecast: test_training.py's shipped-policy test
+            continue
+        path = shipped_policy_path(algo, scene)
+        assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
+        policy = make_policy(algo, env)
+        assert policy.predictor == "none" and policy.meta["scene"] == scene
+        assert int(policy.meta["config"]["total_steps"]) == record["train_steps"]
+        assert record["episodes"] == 200 and record["held_out_seed"] == 1000
+        ts = env.reset()
+        for _ in range(3):
+            action = policy.act(ts.observation)
+            assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+            ts = env.step(action)
