@@ -17,6 +17,7 @@ passed to ``reset``. Numpy only; the task feeds it measured positions, headings 
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,16 @@ import numpy as np
 from deck_sim.geometry import NoPathError, VisibilityGraph
 
 DRIVING, DWELLING = 0, 1
+
+
+def _minimum(a: float, b: float) -> float:
+    """``np.minimum`` of two floats: a NaN in either gives NaN."""
+    return a if a <= b or a != a else b
+
+
+def _maximum(a: float, b: float) -> float:
+    """``np.maximum`` of two floats: a NaN in either gives NaN."""
+    return a if a >= b or a != a else b
 
 
 @dataclass(frozen=True)
@@ -135,7 +146,6 @@ class MoverBehaviour:
         self.route_rest = [np.zeros(0)] * n  # remaining route length after each waypoint
         self.waypoint = np.zeros(n, dtype=int)
         self.route_last = np.zeros(n, dtype=int)
-        self._lower = np.arange(n)[None, :] < np.arange(n)[:, None]  # [i, j]: j < i
         # what each mover yields to: the other movers (pairs of discs and half-lengths) and, if enabled, the
         # agent (its parts turned to its heading, ``_agent_ahead``)
         # ahead: free distance + own half-length + the other's half-length; beside: both half-widths
@@ -161,6 +171,23 @@ class MoverBehaviour:
         near = np.hypot(self._agent_reach[:, 0] + extent, self._agent_width[:, 0] + extent) + offset
         self._agent_near_sq = near * near
         self._any_holonomic = bool(np.any(self.holonomic))
+        # the hot path (``command``) works on plain Python floats: its tables as nested lists
+        self._yield_reach_l = self._yield_reach.tolist()
+        self._contact_reach_l = self._contact_reach.tolist()
+        self._yield_width_l = self._yield_width.tolist()
+        self._agent_reach_l = self._agent_reach[:, 0].tolist()
+        self._agent_width_l = self._agent_width[:, 0].tolist()
+        self._agent_near_sq_l = self._agent_near_sq.tolist()
+        # (1 cm beyond it, far beyond rounding: which movers the agent test is run for once it is run at all)
+        self._agent_test_sq_l = ((near + 0.01) ** 2).tolist()
+        self._agent_parts_l = self._agent_parts.tolist()
+        self._holonomic_l = np.asarray(self.holonomic, dtype=bool).tolist()
+        # pairs of movers that may be in each other's way: one lies within the longest reach ahead of the other and
+        # within the width beside it, so closer than their hypotenuse (plus 1 cm, far beyond rounding); no other
+        # pair is looked at (``_must_yield``)
+        reach = np.hypot(np.maximum(self._yield_reach, self._contact_reach), self._yield_width) + 0.01
+        self._pair_near_l = (reach * reach).tolist()
+        self._pair_near_max = float(reach.max(initial=0.0))
         self._route_cache: dict[tuple[int, int, int], np.ndarray] = {}
         self.aim = np.asarray(positions, dtype=float).copy()
         self.rest_after_aim = np.zeros(n)
@@ -228,7 +255,7 @@ class MoverBehaviour:
         self.mode[i] = DWELLING
         self.dwell_until[i] = t + float(self._rng.uniform(lo, hi))
 
-    # -- the per-step command (vectorised; the hot path: keep the number of numpy calls small) -------------
+    # -- the per-step command (the hot path: a few numpy calls over all movers, the rest plain Python floats) --
     def command(
         self,
         t: float,
@@ -246,180 +273,270 @@ class MoverBehaviour:
             positions: (n, 2) metres; headings: (n,) radians; speeds: (n,) m/s, all measured now.
             agent_xy: (2,) the agent's position, metres.
             agent_yaw: the agent's heading, radians (turns ``agent_parts``).
+
+        With 5-13 movers, numpy's per-call cost outweighs its work, so only the transcendental functions run
+        in numpy (one call over all movers each, as they always have: their results stay bit-identical) and
+        the rest is Python float arithmetic in the same order of operations.
         """
         p = self.params
-        driving = self.mode == DRIVING
+        n = len(self.radii)
+        nan = math.nan
         to_aim = self.aim - positions
-        dist_aim = np.sqrt((to_aim * to_aim).sum(axis=1))
-        last_wp = self.waypoint >= self.route_last
+        aim_xy = to_aim.tolist()
+        dist = [math.sqrt(x * x + y * y) for x, y in aim_xy]
+        spd = speeds.tolist()
+        mode = self.mode.tolist()
+        driving = [m == DRIVING for m in mode]
         # events, rare: next waypoint, arrival, departure, stuck
-        events = (
-            (driving & ~last_wp & (dist_aim < p.waypoint_tolerance))
-            | (driving & last_wp & (dist_aim < p.arrive_tolerance) & (speeds < 0.6))
-            | (~driving & (t >= self.dwell_until))
-        )
-        moving = speeds > 0.2
-        self.still_since[moving | ~driving] = np.nan
-        starting = ~moving & driving & np.isnan(self.still_since)
-        self.still_since[starting] = t
-        stuck = (driving & (t - self.still_since > p.stuck_time) & ~self.yielding) | self.give_up
-        if events.any() or stuck.any():
-            for i in np.flatnonzero(events | stuck):
-                if stuck[i] or (not driving[i] and t >= self.dwell_until[i]):
+        waypoint, route_last, dwell_until = self.waypoint.tolist(), self.route_last.tolist(), self.dwell_until.tolist()
+        still, yielding, give_up = self.still_since.tolist(), self.yielding.tolist(), self.give_up.tolist()
+        events = []
+        for i in range(n):
+            drv, last_wp = driving[i], waypoint[i] >= route_last[i]
+            if spd[i] > 0.2 or not drv:  # moving, or not driving
+                still[i] = nan
+            elif still[i] != still[i]:  # just stopped while driving
+                still[i] = t
+            stuck = (drv and t - still[i] > p.stuck_time and not yielding[i]) or give_up[i]
+            if drv:
+                event = dist[i] < p.arrive_tolerance and spd[i] < 0.6 if last_wp else dist[i] < p.waypoint_tolerance
+            else:
+                event = t >= dwell_until[i]
+            if event or stuck:
+                events.append((i, stuck, drv, last_wp))
+        self.still_since[:] = still
+        if events:
+            for i, stuck, drv, last_wp in events:
+                if stuck or (not drv and t >= self.dwell_until[i]):
                     if self.give_up[i]:
                         self.last_give_up[i] = t
                     away = self.blocked_by[i] if self.give_up_locked[i] else None
                     self._depart(i, positions[i], t, away_from=away)
                     self.agent_wait_since[i] = np.nan
                     self.give_up[i] = False
-                elif not last_wp[i]:
+                elif not last_wp:
                     self.waypoint[i] += 1
                     self.aim[i] = self.routes[i][self.waypoint[i]]
                     self.rest_after_aim[i] = self.route_rest[i][self.waypoint[i]]
                 else:
                     self._arrive(i, t)
-            driving = self.mode == DRIVING
+            driving = [m == DRIVING for m in self.mode.tolist()]
             to_aim = self.aim - positions
-            dist_aim = np.sqrt((to_aim * to_aim).sum(axis=1))
+            aim_xy = to_aim.tolist()
+            dist = [math.sqrt(x * x + y * y) for x, y in aim_xy]
 
-        # speed profile: cruise, braking to a stop at the spot (planned half a step early)
-        remaining = dist_aim + self.rest_after_aim
-        v_stop = np.sqrt(2.0 * p.decel * np.maximum(remaining - speeds * (0.5 * dt) - 0.3, 0.0))
-        v_des = np.minimum(self.cruise, v_stop) * driving
-        v_des[self._must_yield(t, positions, headings, speeds, to_aim, dist_aim, driving, agent_xy, agent_yaw)] = 0.0
-        err = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
-        # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
-        align = np.maximum(np.cos(err), 0.0)
-        align *= align
-        if self._any_holonomic:
-            align[self.holonomic] = 1.0
-        v_cmd = np.minimum(v_des * align, self.cmd_speed + p.accel * dt)
-        np.maximum(v_cmd, self.cmd_speed - p.decel * 2.0 * dt, out=v_cmd)
-        v_cmd[self.yielding] = 0.0  # yielding brakes at once, as hard as the drive allows
-        np.maximum(v_cmd, 0.0, out=v_cmd)
+        yielding = self._must_yield(t, positions, headings, spd, aim_xy, dist, driving, agent_xy, agent_yaw)
+        err_arr = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
+        cos_err, err = np.cos(err_arr).tolist(), err_arr.tolist()
+        cruise, rest, cmd_speed = self.cruise.tolist(), self.rest_after_aim.tolist(), self.cmd_speed.tolist()
+        holonomic = self._holonomic_l
+        two_decel, half_dt = 2.0 * p.decel, 0.5 * dt
+        accel_step, brake_step = p.accel * dt, p.decel * 2.0 * dt
+        gain, turn = p.heading_gain, p.turn_rate
+        v_out, w_out, vel_out = [0.0] * n, [0.0] * n, [(0.0, 0.0)] * n
+        for i in range(n):
+            # speed profile: cruise, braking to a stop at the spot (planned half a step early)
+            v_stop = math.sqrt(two_decel * max(dist[i] + rest[i] - spd[i] * half_dt - 0.3, 0.0))
+            v_des = 0.0 if yielding[i] else min(v_stop, cruise[i]) * driving[i]
+            # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
+            if holonomic[i]:
+                align = 1.0
+            else:
+                align = max(cos_err[i], 0.0)
+                align *= align
+            v = _minimum(v_des * align, cmd_speed[i] + accel_step)
+            v = _maximum(v, cmd_speed[i] - brake_step)
+            if yielding[i]:
+                v = 0.0  # yielding brakes at once, as hard as the drive allows
+            v = max(v, 0.0)
+            v_out[i] = v
+            w = max(min(gain * err[i], turn), -turn)
+            w_out[i] = w * (driving[i] and not holonomic[i])
+            scale = v / max(dist[i], 1e-6)
+            vel_out[i] = (aim_xy[i][0] * scale, aim_xy[i][1] * scale)
+        v_cmd = np.array(v_out)
         self.cmd_speed = v_cmd
-        yaw_rate = np.minimum(p.heading_gain * err, p.turn_rate)
-        np.maximum(yaw_rate, -p.turn_rate, out=yaw_rate)
-        yaw_rate *= driving & ~self.holonomic
-        velocity = to_aim * (v_cmd / np.maximum(dist_aim, 1e-6))[:, None]
-        return MoverCommands(speed=v_cmd, yaw_rate=yaw_rate, velocity=velocity)
+        return MoverCommands(speed=v_cmd, yaw_rate=np.array(w_out), velocity=np.array(vel_out).reshape(n, 2))
 
     def _must_yield(
         self,
         t: float,
         positions: np.ndarray,
         headings: np.ndarray,
-        speeds: np.ndarray,
-        to_aim: np.ndarray,
-        dist_aim: np.ndarray,
-        driving: np.ndarray,
+        speeds: list[float],
+        to_aim: list[list[float]],
+        dist_aim: list[float],
+        driving: list[bool],
         agent_xy: np.ndarray,
         agent_yaw: float,
-    ) -> np.ndarray:
-        """(n,) whether each driving mover has something close ahead that it must stop for.
+    ) -> list[bool]:
+        """Whether each driving mover has something close ahead that it must stop for (n bools).
 
         Ahead means along the mover's heading; a vehicle slower than ``turn_speed`` (starting, or turning
         towards a new aim) only counts what is also ahead in the direction of its aim, so it can turn away
-        from what blocks it; something right at its nose always counts.
+        from what blocks it; something right at its nose always counts. Sets ``yielding``, ``give_up``,
+        ``give_up_locked``, ``blocked_by`` and the yield timers. Only the pairs of movers near enough to be in
+        each other's way are looked at (``_pair_near_sq``); all the others never are.
         """
         p = self.params
         n = len(self.radii)
         if p.yield_distance <= 0:
-            return np.zeros(n, dtype=bool)
-        # vehicles look along their heading; pedestrians along the way they are going
-        fx, fy = np.cos(headings), np.sin(headings)
-        if self._any_holonomic:
-            hol = self.holonomic & (dist_aim > 1e-6)
-            fx[hol] = to_aim[hol, 0] / dist_aim[hol]
-            fy[hol] = to_aim[hol, 1] / dist_aim[hol]
-        rx = positions[None, :, 0] - positions[:, 0:1]
-        ry = positions[None, :, 1] - positions[:, 1:2]
-        fx, fy = fx[:, None], fy[:, None]
-        along = rx * fx + ry * fy
-        lateral = np.abs(rx * fy - ry * fx)
-        beside = lateral < self._yield_width
-        movers = (along > 0.0) & (along < self._yield_reach) & beside
-        close = (along > 0.0) & (along < self._contact_reach) & beside
-        agent_parts = None
-        if p.yield_to_agent:
-            rel = positions - agent_xy
-            if ((rel * rel).sum(axis=1) < self._agent_near_sq).any():
-                agent_parts = self._agent_frame(agent_xy, agent_yaw)
-        for_agent = self._agent_ahead(positions, fx, fy, agent_parts)
-        slow = (speeds < p.turn_speed) & (dist_aim > 1e-6)
-        if slow.any():
-            ax = (to_aim[:, 0] / np.maximum(dist_aim, 1e-6))[:, None]
-            ay = (to_aim[:, 1] / np.maximum(dist_aim, 1e-6))[:, None]
-            along_aim = rx * ax + ry * ay
-            towards = (
-                (along_aim > 0.0) & (along_aim < self._yield_reach) & (np.abs(rx * ay - ry * ax) < self._yield_width)
-            )
-            movers &= ~slow[:, None] | towards
-            movers |= close
-            if (for_agent & slow).any():  # (the agent is rarely in anyone's way)
-                for_agent &= ~slow | self._agent_ahead(positions, ax, ay, agent_parts)
+            return [False] * n
+        nan = math.nan
+        pos = positions.tolist()
+        # vehicles look along their heading; pedestrians along the way they are going; slow vehicles also
+        # look towards their aim
+        fx, fy = np.cos(headings).tolist(), np.sin(headings).tolist()
+        holonomic, turn_speed = self._holonomic_l, p.turn_speed
+        slow = [False] * n
+        aim_dir: list[tuple[float, float]] = [(0.0, 0.0)] * n  # where slow
+        for i in range(n):
+            d = dist_aim[i]
+            if d > 1e-6:
+                tx, ty = to_aim[i]
+                if holonomic[i]:
+                    fx[i], fy[i] = tx / d, ty / d
+                if speeds[i] < turn_speed:
+                    slow[i] = True
+                    d = max(d, 1e-6)
+                    aim_dir[i] = (tx / d, ty / d)
+        any_slow = any(slow)
+
+        # pairs: (i, j) -> whether i yields to j (``movers``) and whether j is right at i's nose (``close``), for
+        # the pairs near enough to matter (found by sweeping along x)
+        reach_l, contact_l, width_l, near_l = (
+            self._yield_reach_l,
+            self._contact_reach_l,
+            self._yield_width_l,
+            self._pair_near_l,
+        )
+        xs = [q[0] for q in pos]
+        order = sorted(range(n), key=xs.__getitem__)
+        movers: dict[tuple[int, int], bool] = {}
+        close_to: list[list[tuple[int, float]]] = [[] for _ in range(n)]  # i -> [(j, along)] right at its nose
+        for k, a in enumerate(order):
+            xa, ya = pos[a]
+            for b in order[k + 1 :]:
+                dx = xs[b] - xa
+                if dx >= self._pair_near_max:
+                    break
+                dy = pos[b][1] - ya
+                if dx * dx + dy * dy >= near_l[a][b]:
+                    continue
+                for i, j in ((a, b), (b, a)):
+                    rx, ry = pos[j][0] - pos[i][0], pos[j][1] - pos[i][1]
+                    along = rx * fx[i] + ry * fy[i]
+                    beside = abs(rx * fy[i] - ry * fx[i]) < width_l[i][j]
+                    yields = along > 0.0 and along < reach_l[i][j] and beside
+                    close = along > 0.0 and along < contact_l[i][j] and beside
+                    if close:
+                        close_to[i].append((j, along))
+                    if any_slow:
+                        if yields and slow[i]:
+                            ax, ay = aim_dir[i]
+                            along_aim = rx * ax + ry * ay
+                            yields = (
+                                along_aim > 0.0 and along_aim < reach_l[i][j] and abs(rx * ay - ry * ax) < width_l[i][j]
+                            )
+                        yields = yields or close
+                    if yields:
+                        movers[(i, j)] = True
         # head on (each ahead of the other, facing each other): both wait and the higher-numbered one turns away;
         # in any other stand-off the lower index goes first
-        opposed = (fx * fx.T + fy * fy.T) < -0.5
-        head_on = movers & movers.T & opposed
-        movers &= ~movers.T | self._lower | head_on
-        by_mover = movers.any(axis=1)
-        # a mover that waited too long for another mover goes anyway, but never into one right at its nose
-        self.yield_since[~by_mover] = np.nan
-        self.yield_since[by_mover & np.isnan(self.yield_since)] = t
-        at_nose = close.any(axis=1)
-        waited = t - self.yield_since
-        by_mover &= (waited <= p.max_yield_time) | at_nose
-        self.yielding = (by_mover | for_agent) & driving
-        # gridlock: one at its nose for longer than ``stuck_time`` -> head for a spot away from it (once per
-        # ``max_yield_time``); a wheeled mover turns on the spot towards it and the one at its nose drops out of view
-        rested = ~(t - self.last_give_up < p.max_yield_time)
-        locked = by_mover & at_nose & (waited > p.stuck_time) & driving & rested
-        if locked.any():
-            for i in np.flatnonzero(locked):
-                j = np.flatnonzero(close[i])
-                k = j[np.argmin(along[i, j])]
-                self.blocked_by[i] = positions[k] - positions[i]
-        self.give_up_locked = locked
-        # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
-        for_agent &= driving
-        self.agent_wait_since[~for_agent] = np.nan
-        self.agent_wait_since[for_agent & np.isnan(self.agent_wait_since)] = t
-        self.give_up = for_agent & ((t - self.agent_wait_since) > p.max_yield_time)
-        # head on with another mover: the higher-numbered one heads for another spot (once per max_yield_time)
-        self.give_up |= ((head_on & self._lower).any(axis=1) & driving & rested) | locked
-        return self.yielding
+        by_mover, head_on_lower = [False] * n, [False] * n
+        for i, j in movers:
+            head_on = (j, i) in movers and fx[i] * fx[j] + fy[i] * fy[j] < -0.5
+            if (j, i) not in movers or j < i or head_on:
+                by_mover[i] = True
+            if head_on and j < i:
+                head_on_lower[i] = True
 
-    def _agent_frame(self, agent_xy: np.ndarray, agent_yaw: float) -> tuple[np.ndarray, float, float]:
-        """The agent's parts in the world: centres (k, 2), and the cosine and sine of its heading."""
-        c, s = np.cos(agent_yaw), np.sin(agent_yaw)
-        parts = self._agent_parts
-        centres = np.stack([parts[:, 0] * c - parts[:, 1] * s, parts[:, 0] * s + parts[:, 1] * c], axis=1)
-        return centres + agent_xy, c, s
+        # the agent, by its parts turned to its heading (only when it is near some mover)
+        for_agent = [False] * n
+        if p.yield_to_agent:
+            ax0, ay0 = float(agent_xy[0]), float(agent_xy[1])
+            rel_sq = [(x - ax0) * (x - ax0) + (y - ay0) * (y - ay0) for x, y in pos]
+            if any(r < s for r, s in zip(rel_sq, self._agent_near_sq_l, strict=True)):
+                parts = self._agent_frame(agent_xy, agent_yaw)
+                for i in range(n):
+                    if rel_sq[i] < self._agent_test_sq_l[i] and self._agent_ahead(i, pos[i], fx[i], fy[i], parts):
+                        # a slow vehicle only counts the agent if it is also ahead towards its aim
+                        for_agent[i] = not slow[i] or self._agent_ahead(i, pos[i], *aim_dir[i], parts)
+
+        ys, aws = self.yield_since.tolist(), self.agent_wait_since.tolist()
+        last_give_up = self.last_give_up.tolist()
+        yielding, give_up, locked = [False] * n, [False] * n, [False] * n
+        for i in range(n):
+            # a mover that waited too long for another mover goes anyway, but never into one right at its nose
+            if not by_mover[i]:
+                ys[i] = nan
+            elif ys[i] != ys[i]:
+                ys[i] = t
+            at_nose = bool(close_to[i])
+            waited = t - ys[i]
+            yields = by_mover[i] and (waited <= p.max_yield_time or at_nose)
+            drv = driving[i]
+            yielding[i] = (yields or for_agent[i]) and drv
+            # gridlock: one at its nose for longer than ``stuck_time`` -> head for a spot away from it (once per
+            # ``max_yield_time``); a wheeled mover turns on the spot towards it and the one at its nose drops out
+            # of view
+            rested = not (t - last_give_up[i] < p.max_yield_time)
+            if yields and at_nose and waited > p.stuck_time and drv and rested:
+                locked[i] = True
+                k = min(sorted(close_to[i]), key=lambda c: c[1])[0]  # the nearest ahead (lowest index on ties)
+                self.blocked_by[i] = positions[k] - positions[i]
+            # waiting for the agent: after ``max_yield_time`` the driver gives up and heads for another spot
+            waits = for_agent[i] and drv
+            if not waits:
+                aws[i] = nan
+            elif aws[i] != aws[i]:
+                aws[i] = t
+            # head on with another mover: the higher-numbered one heads for another spot (once per max_yield_time)
+            give_up[i] = (waits and t - aws[i] > p.max_yield_time) or (head_on_lower[i] and drv and rested) or locked[i]
+        self.yield_since[:] = ys
+        self.agent_wait_since[:] = aws
+        self.yielding = np.array(yielding, dtype=bool)
+        self.give_up_locked = np.array(locked, dtype=bool)
+        self.give_up = np.array(give_up, dtype=bool)
+        return yielding
+
+    def _agent_frame(self, agent_xy: np.ndarray, agent_yaw: float) -> tuple[list[tuple[float, float]], float, float]:
+        """The agent's parts in the world: centres (k pairs, metres), and the cosine and sine of its heading."""
+        c, s = float(np.cos(agent_yaw)), float(np.sin(agent_yaw))
+        x0, y0 = float(agent_xy[0]), float(agent_xy[1])
+        centres = [(px * c - py * s + x0, px * s + py * c + y0) for px, py, *_ in self._agent_parts_l]
+        return centres, c, s
 
     def _agent_ahead(
-        self, positions: np.ndarray, dx: np.ndarray, dy: np.ndarray, agent: tuple[np.ndarray, float, float] | None
-    ) -> np.ndarray:
-        """(n,) whether any part of the agent lies in the corridor ahead of each mover along (dx, dy) (n, 1).
+        self,
+        i: int,
+        position: list[float],
+        dx: float,
+        dy: float,
+        agent: tuple[list[tuple[float, float]], float, float],
+    ) -> bool:
+        """Whether any part of the agent lies in the corridor ahead of mover i (at ``position``) along (dx, dy).
 
         The corridor reaches ``agent_yield_distance`` beyond the mover's nose and the part's extent along that
         direction, and is as wide as both half-widths plus 1 m: a separating-axis test of the part's rounded box
         on the mover's two axes.
         """
-        if agent is None:
-            return np.zeros(len(positions), dtype=bool)
         centres, c, s = agent
-        parts = self._agent_parts
-        rx = centres[None, :, 0] - positions[:, 0:1]  # (n, k)
-        ry = centres[None, :, 1] - positions[:, 1:2]
-        along = rx * dx + ry * dy
-        lateral = np.abs(rx * dy - ry * dx)
-        ux = np.abs(dx * c + dy * s)  # the direction in the agent's frame, (n, 1)
-        uy = np.abs(dy * c - dx * s)
-        reach = parts[:, 2] * ux + parts[:, 3] * uy + parts[:, 4]  # extent of each part along it, (n, k)
-        width = parts[:, 2] * uy + parts[:, 3] * ux + parts[:, 4]  # and across it
-        inside = (along > 0.0) & (along < self._agent_reach + reach) & (lateral < self._agent_width + width)
-        return inside.any(axis=1)
+        ux = abs(dx * c + dy * s)  # the direction in the agent's frame
+        uy = abs(dy * c - dx * s)
+        x, y = position
+        for (cx, cy), (_, _, hx, hy, r) in zip(centres, self._agent_parts_l, strict=True):
+            rx, ry = cx - x, cy - y
+            along = rx * dx + ry * dy
+            reach = hx * ux + hy * uy + r  # extent of the part along the direction
+            width = hx * uy + hy * ux + r  # and across it
+            if (
+                along > 0.0
+                and along < self._agent_reach_l[i] + reach
+                and abs(rx * dy - ry * dx) < self._agent_width_l[i] + width
+            ):
+                return True
+        return False
 
     _STATE = (
         "mode",

@@ -1,6 +1,20 @@
-"""Movers' behaviour rules and the scripted planner's clearance, numpy only (no MuJoCo)."""
+"""Movers' behaviour rules and the scripted planner's clearance, numpy only (no MuJoCo).
+
+The golden file ``tests/data/behaviour_golden.npz`` holds every command and every piece of state of the movers
+over a crowded kinematic closed loop (``_closed_loop``), recorded by the vectorised-numpy behaviour before it was
+rewritten for speed (commit 7390662); the behaviour must reproduce it bit for bit. After a deliberate change of
+the behaviour, regenerate it with
+
+    DECK_SIM_REGEN_GOLDEN=1 python -m pytest tests/test_behaviour.py -k golden
+
+and say why in the commit message.
+"""
+
+import os
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from deck_sim.behaviour import BehaviourParams, MoverBehaviour
 from deck_sim.control.planners import ScriptedPlanner
@@ -18,6 +32,7 @@ PARAMS = BehaviourParams(
 )
 SPOTS = np.array([[60.0, 0.0], [-60.0, 0.0], [0.0, 60.0], [0.0, -60.0]])
 BOUNDS = np.array([[-100.0, -100.0], [100.0, 100.0]])
+GOLDEN = Path(__file__).parent / "data" / "behaviour_golden.npz"
 
 
 def _two_tractors(seed: int) -> tuple[MoverBehaviour, np.ndarray, np.ndarray]:
@@ -139,3 +154,80 @@ def test_the_planner_passes_a_standing_vehicle_by_its_footprint_not_its_circumci
     # the same vehicle turned across the path reaches 9 m towards it: the straight line is not clear any more
     path = planner.path(_view(np.pi / 2, 15.0))
     assert len(path) > 2 or np.max(np.abs(path[:, 1] - 15.0)) > 1.0
+
+
+_GOLDEN_STATE = ("mode", "spot", "cruise", "dwell_until", "still_since", "yield_since", "yielding")
+_GOLDEN_STATE += ("agent_wait_since", "give_up", "last_give_up", "give_up_locked", "blocked_by", "waypoint", "aim")
+
+
+def _closed_loop(seed: int, steps: int = 300, behaviour_cls: type = MoverBehaviour) -> dict[str, np.ndarray]:
+    """Nine movers (tractors, two taxiing aircraft, pedestrians) among six spots close together around a parked
+    box, with the aircraft agent circling through them: kinematic vehicles that follow the commands with a lag,
+    so that movers yield, meet head on, gridlock, wait for the agent and give up. Returns every command and the
+    state after every step, stacked over steps."""
+    n_tractor, n_aircraft, n_ped = 4, 2, 3
+    n = n_tractor + n_aircraft + n_ped
+    holonomic = np.array([False] * (n_tractor + n_aircraft) + [True] * n_ped)
+    radii = np.array([1.2] * n_tractor + [6.5] * n_aircraft + [0.4] * n_ped)
+    fronts = np.array([2.0] * n_tractor + [8.5] * n_aircraft + [0.4] * n_ped)
+    spots = np.array([[-25.0, 0.0], [25.0, 0.0], [0.0, 22.0], [0.0, -22.0], [-18.0, 18.0], [18.0, -18.0]])
+    box = Footprints(np.zeros((1, 2)), np.array([[6.0, 3.0]]), np.array([0.3]), np.zeros(1))
+    bounds = np.array([[-45.0, -45.0], [45.0, 45.0]])
+    graphs = [VisibilityGraph(box, float(r) + 0.5, bounds) for r in radii]
+    behaviour = behaviour_cls(
+        spots=spots,
+        holonomic=holonomic,
+        radii=radii,
+        params=PARAMS,
+        fronts=fronts,
+        agent_radius=7.0,
+        agent_parts=AIRCRAFT_PARTS,
+    )
+    rng = np.random.default_rng(seed)
+    at_spot = np.array([0, 1, 2, 3, 4, 5, -1, -1, -1])
+    positions = np.where(at_spot[:, None] >= 0, spots[at_spot], rng.uniform(-30.0, 30.0, (n, 2)))
+    headings = rng.uniform(-np.pi, np.pi, n)
+    speeds = np.zeros(n)
+    behaviour.reset(graphs, positions, at_spot, np.random.default_rng(seed + 1))
+    dt, t = 0.5, 0.0
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("speed", "yaw_rate", "velocity", *_GOLDEN_STATE)}
+    for k in range(steps):
+        angle = 0.02 * k
+        agent = np.array([30.0 * np.cos(angle), 20.0 * np.sin(angle)])
+        cmd = behaviour.command(t, dt, positions, headings, speeds, agent, agent_yaw=angle + np.pi / 2)
+        for name in ("speed", "yaw_rate", "velocity"):
+            out[name].append(getattr(cmd, name).copy())
+        for name in _GOLDEN_STATE:
+            out[name].append(np.asarray(getattr(behaviour, name), dtype=float).copy())
+        # the vehicles follow with a lag and a little noise; pedestrians walk at the commanded velocity
+        speeds = speeds + 0.6 * (cmd.speed - speeds) + rng.normal(0.0, 0.05, n) * (cmd.speed > 0)
+        speeds = np.where(holonomic, np.hypot(cmd.velocity[:, 0], cmd.velocity[:, 1]), np.maximum(speeds, 0.0))
+        headings = headings + 0.8 * cmd.yaw_rate * dt
+        step = np.where(
+            holonomic[:, None], cmd.velocity, speeds[:, None] * np.stack([np.cos(headings), np.sin(headings)], 1)
+        )
+        positions = positions + step * dt
+        t += dt
+    return {name: np.stack(v) for name, v in out.items()}
+
+
+def _golden_run() -> dict[str, np.ndarray]:
+    runs = [_closed_loop(seed) for seed in (0, 1)]
+    return {f"{name}_{i}": run[name] for i, run in enumerate(runs) for name in run}
+
+
+def test_the_behaviour_reproduces_its_golden_closed_loop_bit_for_bit():
+    got = _golden_run()
+    if os.environ.get("DECK_SIM_REGEN_GOLDEN"):
+        np.savez_compressed(GOLDEN, **got)
+        pytest.skip(f"regenerated {GOLDEN}")
+    want = np.load(GOLDEN)
+    assert sorted(want.files) == sorted(got)
+    for name in want.files:
+        np.testing.assert_array_equal(got[name], want[name], err_msg=name, strict=True)
+    # the loop exercises the rules it guards: yielding, giving up (head on, gridlock, the agent), departures
+    for i in range(2):
+        assert want[f"yielding_{i}"].any() and want[f"give_up_{i}"].any()
+        assert want[f"give_up_locked_{i}"].any(), "no gridlock"
+        assert np.isfinite(want[f"agent_wait_since_{i}"]).any(), "never waited for the agent"
+        assert (np.diff(want[f"spot_{i}"], axis=0) != 0).sum() > 20
