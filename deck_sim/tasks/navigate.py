@@ -19,6 +19,7 @@ Observation (all relative vectors in the world frame, metres; obstacles nearest 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -583,18 +584,19 @@ class Navigate(composer.Task):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (2,):
             raise InvalidActionError(f"action must have shape (2,), got {action.shape}")
-        if not np.all(np.isfinite(action)):
+        a0, a1 = action.tolist()  # (plain floats: numpy's calls on two numbers cost more than the checks)
+        if not (math.isfinite(a0) and math.isfinite(a1)):
             raise InvalidActionError(f"action must be finite, got {action.tolist()}")
-        if np.any(np.abs(action) > 1.0 + 1e-6):
+        if abs(a0) > 1.0 + 1e-6 or abs(a1) > 1.0 + 1e-6:
             raise InvalidActionError(f"action must lie in [-1, 1]^2, got {action.tolist()}")
         spec, d, st = self.spec, self._d, self._state
         period = spec.episode.control_period
         self._last_action = action
-        displacement = action * spec.agent.reach
         if isinstance(self._agent, Aircraft):
+            reach = spec.agent.reach
             cmd = track_displacement(
-                float(displacement[0]),
-                float(displacement[1]),
+                a0 * reach,
+                a1 * reach,
                 float(st["yaw"][0]),
                 float(st["forward_speed"][0]),
                 period,
@@ -602,16 +604,18 @@ class Navigate(composer.Task):
             )
             d.ctrl[self._ctrl_agent] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
         else:
+            displacement = action * spec.agent.reach
             d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
         self._command_movers(physics.data.time, st)
 
         # fused substeps, split for collision checks; composer runs the final one
-        warn_before = int(np.sum(d.warning.number[self._warning_ids]))
+        warnings = d.warning.number
+        warn_before = sum(warnings[self._warning_ids].tolist())
         self._collided_with = None
         for c in self._chunks:
             mujoco.mj_step(self._m, d, nstep=c)
             self._check_contacts()
-        self._diverged = int(np.sum(d.warning.number[self._warning_ids])) > warn_before
+        self._diverged = sum(warnings[self._warning_ids].tolist()) > warn_before
 
     def _command_movers(self, t: float, st: dict[str, np.ndarray]) -> None:
         if not self._movers:
@@ -626,19 +630,19 @@ class Navigate(composer.Task):
             float(st["yaw"][0]),
         )
         d = self._d
+        speed, yaw_rate = cmd.speed.tolist(), cmd.yaw_rate.tolist()
         g = self._mover_groups["tractor"]
         if len(g):
-            v, w = cmd.speed[g], cmd.yaw_rate[g]
             half_track, radius = self._tractor_track / 2, self._tractor_wheel_radius
-            wheels = np.stack([(v - w * half_track) / radius, (v + w * half_track) / radius], axis=1)
-            d.ctrl[self._mover_ctrl["tractor"]] = wheels
+            d.ctrl[self._mover_ctrl["tractor"]] = [
+                ((speed[i] - yaw_rate[i] * half_track) / radius, (speed[i] + yaw_rate[i] * half_track) / radius)
+                for i in g.tolist()
+            ]
         g = self._mover_groups["aircraft"]
         if len(g):
-            speeds = st["forward_speed"]
+            speeds = st["forward_speed"].tolist()
             for i, ctrl in zip(g.tolist(), self._mover_ctrl["aircraft"], strict=True):
-                ac = speed_and_yaw_rate(
-                    float(cmd.speed[i]), float(cmd.yaw_rate[i]), float(speeds[1 + i]), self._mover_limits
-                )
+                ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[1 + i], self._mover_limits)
                 d.ctrl[ctrl] = (ac.steer, ac.thrust, ac.brake, ac.brake)
         g = self._mover_groups["pedestrian"]
         if len(g):
@@ -661,7 +665,7 @@ class Navigate(composer.Task):
         """Read the new state, update histories, prediction, reward, termination and observation."""
         self._check_contacts()
         d = self._d
-        self._diverged = self._diverged or not np.all(np.isfinite(d.qpos))
+        self._diverged = self._diverged or not np.isfinite(d.qpos).all()
         spec = self.spec
         st = self._read_state()
         on_surface = self._arena.on_surface(st["xy"])  # the agent, then every mover
@@ -675,7 +679,8 @@ class Navigate(composer.Task):
         self._history[:, -1] = st["xy"][1:]
         self._prediction = self._predict(physics)
 
-        dist = float(np.linalg.norm(self.layout.target_xy - agent_xy))
+        to_target = self.layout.target_xy - agent_xy
+        dist = math.sqrt(to_target.dot(to_target))  # as np.linalg.norm computes it
         clear = self._obstacle_clearances(st)
         r = spec.reward
         self._reached = dist <= spec.agent.goal_radius and self._collided_with is None
