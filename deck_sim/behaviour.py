@@ -376,7 +376,7 @@ class MoverBehaviour:
         towards a new aim) only counts what is also ahead in the direction of its aim, so it can turn away
         from what blocks it; something right at its nose always counts. Sets ``yielding``, ``give_up``,
         ``give_up_locked``, ``blocked_by`` and the yield timers. Only the pairs of movers near enough to be in
-        each other's way are looked at (``_pair_near_sq``); all the others never are.
+        each other's way are looked at (``_pair_near_l``); all the others never are.
         """
         p = self.params
         n = len(self.radii)
@@ -398,7 +398,6 @@ class MoverBehaviour:
                     fx[i], fy[i] = tx / d, ty / d
                 if speeds[i] < turn_speed:
                     slow[i] = True
-                    d = max(d, 1e-6)
                     aim_dir[i] = (tx / d, ty / d)
         any_slow = any(slow)
 
@@ -456,10 +455,12 @@ class MoverBehaviour:
         if p.yield_to_agent:
             ax0, ay0 = float(agent_xy[0]), float(agent_xy[1])
             rel_sq = [(x - ax0) * (x - ax0) + (y - ay0) * (y - ay0) for x, y in pos]
-            if any(r < s for r, s in zip(rel_sq, self._agent_near_sq_l, strict=True)):
+            test_sq, near_sq = self._agent_test_sq_l, self._agent_near_sq_l
+            near = [i for i in range(n) if rel_sq[i] < test_sq[i]]
+            if any(rel_sq[i] < near_sq[i] for i in near):
                 parts = self._agent_frame(agent_xy, agent_yaw)
-                for i in range(n):
-                    if rel_sq[i] < self._agent_test_sq_l[i] and self._agent_ahead(i, pos[i], fx[i], fy[i], parts):
+                for i in near:
+                    if self._agent_ahead(i, pos[i], fx[i], fy[i], parts):
                         # a slow vehicle only counts the agent if it is also ahead towards its aim
                         for_agent[i] = not slow[i] or self._agent_ahead(i, pos[i], *aim_dir[i], parts)
 
@@ -500,12 +501,13 @@ class MoverBehaviour:
         self.give_up = np.array(give_up, dtype=bool)
         return yielding
 
-    def _agent_frame(self, agent_xy: np.ndarray, agent_yaw: float) -> tuple[list[tuple[float, float]], float, float]:
-        """The agent's parts in the world: centres (k pairs, metres), and the cosine and sine of its heading."""
+    def _agent_frame(self, agent_xy: np.ndarray, agent_yaw: float) -> tuple[list[tuple[float, ...]], float, float]:
+        """The agent's parts in the world: per part its centre x, y, half-length, half-width and radius (metres),
+        and the cosine and sine of its heading."""
         c, s = float(np.cos(agent_yaw)), float(np.sin(agent_yaw))
         x0, y0 = float(agent_xy[0]), float(agent_xy[1])
-        centres = [(px * c - py * s + x0, px * s + py * c + y0) for px, py, *_ in self._agent_parts_l]
-        return centres, c, s
+        parts = [(px * c - py * s + x0, px * s + py * c + y0, hx, hy, r) for px, py, hx, hy, r in self._agent_parts_l]
+        return parts, c, s
 
     def _agent_ahead(
         self,
@@ -513,7 +515,7 @@ class MoverBehaviour:
         position: list[float],
         dx: float,
         dy: float,
-        agent: tuple[list[tuple[float, float]], float, float],
+        agent: tuple[list[tuple[float, ...]], float, float],
     ) -> bool:
         """Whether any part of the agent lies in the corridor ahead of mover i (at ``position``) along (dx, dy).
 
@@ -521,19 +523,19 @@ class MoverBehaviour:
         direction, and is as wide as both half-widths plus 1 m: a separating-axis test of the part's rounded box
         on the mover's two axes.
         """
-        centres, c, s = agent
+        parts, c, s = agent
         ux = abs(dx * c + dy * s)  # the direction in the agent's frame
         uy = abs(dy * c - dx * s)
         x, y = position
-        for (cx, cy), (_, _, hx, hy, r) in zip(centres, self._agent_parts_l, strict=True):
+        reach_i, width_i = self._agent_reach_l[i], self._agent_width_l[i]
+        for cx, cy, hx, hy, r in parts:
             rx, ry = cx - x, cy - y
             along = rx * dx + ry * dy
-            reach = hx * ux + hy * uy + r  # extent of the part along the direction
-            width = hx * uy + hy * ux + r  # and across it
+            # the part's extent along the direction and across it
             if (
                 along > 0.0
-                and along < self._agent_reach_l[i] + reach
-                and abs(rx * dy - ry * dx) < self._agent_width_l[i] + width
+                and along < reach_i + (hx * ux + hy * uy + r)
+                and abs(rx * dy - ry * dx) < width_i + (hx * uy + hy * ux + r)
             ):
                 return True
         return False

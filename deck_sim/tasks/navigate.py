@@ -342,6 +342,7 @@ class Navigate(composer.Task):
         edges = np.linspace(0, n_fused, self.spec.episode.collision_checks + 1).round().astype(int)
         self._chunks = [int(c) for c in np.diff(edges) if c > 0]
         self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
+        self._any_ped = bool(self._is_ped.any())
 
     # -- episode set-up --------------------------------------------------------------------------------------
     def sample_layout(self, rng: np.random.Generator) -> Layout:
@@ -759,13 +760,13 @@ class Navigate(composer.Task):
     def _read_state(self) -> dict[str, np.ndarray]:
         """Planar pose and velocity of the agent (row 0) and every mover."""
         d = self._d
-        xy = d.xpos[self._body_ids, :2].copy()
+        xy = d.xpos[self._body_ids, :2]  # (fancy indexing copies)
         xmat = d.xmat[self._body_ids]
         yaw = np.arctan2(xmat[:, 3], xmat[:, 0])
         vel = d.qvel[self._vel_dofs]
         fwd = vel[:, 0] * np.cos(yaw) + vel[:, 1] * np.sin(yaw)
         # pedestrians have no body heading: their speed is the norm of their velocity
-        if self._is_ped.any():
+        if self._any_ped:
             fwd[self._is_ped] = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
         return {"xy": xy, "yaw": yaw, "vel": vel, "forward_speed": fwd}
 
