@@ -305,6 +305,9 @@ class Navigate(composer.Task):
             ctrl[kind].append(np.array(physics.bind(list(mover.actuators)).element_id))
         self._mover_groups = {k: np.array(v, dtype=int) for k, v in groups.items()}
         self._mover_ctrl = {k: (np.array(v, dtype=int) if v else np.zeros((0, 2), dtype=int)) for k, v in ctrl.items()}
+        # the hot path writes every mover's controls in one assignment: tractors, aircraft, pedestrians
+        self._mover_rows = dict(groups)
+        self._mover_ctrl_flat = np.concatenate([self._mover_ctrl[k].ravel() for k in groups]).astype(int)
         # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
             self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))
@@ -630,24 +633,24 @@ class Navigate(composer.Task):
             st["xy"][0],
             float(st["yaw"][0]),
         )
-        d = self._d
         speed, yaw_rate = cmd.speed.tolist(), cmd.yaw_rate.tolist()
-        g = self._mover_groups["tractor"]
-        if len(g):
+        rows = self._mover_rows
+        ctrl: list[float] = []  # in the order of ``_mover_ctrl_flat``
+        if rows["tractor"]:
             half_track, radius = self._tractor_track / 2, self._tractor_wheel_radius
-            d.ctrl[self._mover_ctrl["tractor"]] = [
-                ((speed[i] - yaw_rate[i] * half_track) / radius, (speed[i] + yaw_rate[i] * half_track) / radius)
-                for i in g.tolist()
-            ]
-        g = self._mover_groups["aircraft"]
-        if len(g):
+            for i in rows["tractor"]:
+                v, w = speed[i], yaw_rate[i]
+                ctrl += ((v - w * half_track) / radius, (v + w * half_track) / radius)
+        if rows["aircraft"]:
             speeds = st["forward_speed"].tolist()
-            for i, ctrl in zip(g.tolist(), self._mover_ctrl["aircraft"], strict=True):
+            for i in rows["aircraft"]:
                 ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[1 + i], self._mover_limits)
-                d.ctrl[ctrl] = (ac.steer, ac.thrust, ac.brake, ac.brake)
-        g = self._mover_groups["pedestrian"]
-        if len(g):
-            d.ctrl[self._mover_ctrl["pedestrian"]] = cmd.velocity[g]
+                ctrl += (ac.steer, ac.thrust, ac.brake, ac.brake)
+        if rows["pedestrian"]:
+            velocity = cmd.velocity.tolist()
+            for i in rows["pedestrian"]:
+                ctrl += velocity[i]
+        self._d.ctrl[self._mover_ctrl_flat] = ctrl
 
     def _check_contacts(self) -> None:
         """Record the first obstacle the agent touches (contacts between bodies only; wheels touch the deck)."""
