@@ -3,8 +3,9 @@
 For each scene: run the composer environment with a seeded random policy (forward-biased so episodes last) and
 time every ``env.step`` (resets are timed apart); right after each, time raw
 ``mujoco.mj_step(model, data, nstep=substeps)`` from the same starting state on the same compiled model. Prints
-control steps per second, the ratio to the raw floor, the real-time factor (simulated seconds per wall second)
-and the machine. Single-threaded (OMP/MKL threads pinned to 1).
+control steps per second, the ratio to the raw floor, the real-time factor (simulated seconds per wall second),
+the machine and its load average over the last minute after each scene (other jobs on a shared machine slow
+Python more than MuJoCo, so quote the load with the figures). Single-threaded (OMP/MKL threads pinned to 1).
 
     python benchmarks/step_speed.py [--scenes deck1,deck2,square] [--steps 2000] [--predictor constant_velocity]
 """
@@ -95,7 +96,7 @@ def main() -> None:
     print("median over steps; (mean) includes the rare steps where movers replan their routes")
     header = (
         f"{'scene':8s} {'dt':>7s} {'sub':>4s} {'step ms':>8s} {'steps/s':>8s} {'raw ms':>7s} {'x raw':>6s} "
-        f"{'(mean)':>7s} {'x realtime':>10s} {'(mean)':>7s} {'reset ms':>9s}"
+        f"{'(mean)':>7s} {'x realtime':>10s} {'(mean)':>7s} {'reset ms':>9s} {'load':>5s}"
     )
     print(header)
     for name in args.scenes.split(","):
@@ -103,7 +104,7 @@ def main() -> None:
         print(
             f"{name:8s} {r['timestep']:7.4f} {r['substeps']:4.0f} {r['step_ms']:8.3f} {r['steps_per_s']:8.0f} "
             f"{r['raw_ms']:7.3f} {r['ratio']:6.2f} {r['ratio_mean']:7.2f} {r['realtime']:10.0f} "
-            f"{r['realtime_mean']:7.0f} {r['reset_ms']:9.1f}"
+            f"{r['realtime_mean']:7.0f} {r['reset_ms']:9.1f} {os.getloadavg()[0]:5.2f}"
         )
 
 
