@@ -181,6 +181,15 @@ class LearnedPolicy:
         """The predictor whose forecasts the actor was trained on (``none`` for DDPG)."""
         return str(self.meta.get("predictor", "none"))
 
+    @property
+    def scene_overrides(self) -> dict[str, Any]:
+        """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
+        the predictor, and ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes."""
+        out: dict[str, Any] = {"episode__predictor": self.predictor}
+        if "static_nearest" in self.keys:
+            out["episode__obstacle_shape"] = True
+        return out
+
     def reset(self) -> None:
         """The actor has no memory."""
 

@@ -118,3 +118,33 @@ def test_step_info_reports_the_step(envs, scene):
     ):
         assert key in info
     assert set(info["reward_terms"]) == {"r1", "r2", "r3", "r4", "total"}
+
+
+def test_obstacle_shape_observation_gives_nearest_points_and_headings():
+    import deck_sim
+
+    plain = deck_sim.load("deck1", seed=4)
+    assert "static_nearest" not in plain.observation_spec()  # off by default: the paper's observation
+    env = deck_sim.load("deck1", seed=4, episode__obstacle_shape=True)
+    spec = env.observation_spec()
+    m, n = spec["static_obstacles"].shape[0], spec["dynamic_obstacles"].shape[0]
+    assert spec["static_nearest"].shape == (m, 2) and spec["dynamic_nearest"].shape == (n, 2)
+    ts = env.reset()
+    for _ in range(3):
+        ts = env.step(np.array([0.5, 0.2]))
+    obs = ts.observation
+    view = env.task.planner_view()
+    # each nearest point lies on its footprint's boundary, no farther than its centre, in the centres' order
+    near = view.agent_xy + obs["static_nearest"]
+    centre = view.agent_xy + obs["static_obstacles"]
+    idx = [int(np.argmin(np.linalg.norm(view.statics.centers - c, axis=1))) for c in centre]
+    dist = view.statics.distance(view.agent_xy)[0][idx]
+    np.testing.assert_allclose(np.linalg.norm(obs["static_nearest"], axis=1), np.maximum(dist, 0), atol=1e-6)
+    assert np.all(
+        np.linalg.norm(obs["static_nearest"], axis=1) <= np.linalg.norm(obs["static_obstacles"], axis=1) + 1e-9
+    )
+    assert np.all(view.statics.distance(near)[np.arange(m), idx] < 1e-6)
+    np.testing.assert_allclose(np.linalg.norm(obs["dynamic_heading"], axis=1), 1.0)
+    assert np.all(
+        np.linalg.norm(obs["dynamic_nearest"], axis=1) <= np.linalg.norm(obs["dynamic_obstacles"], axis=1) + 1e-9
+    )

@@ -71,18 +71,17 @@ def _format_summary(name: str, policy: str, predictor: str, summary: dict[str, f
     return "\n".join(lines)
 
 
-def _default_predictor(policy: str, scene: str) -> str | None:
-    """The predictor a policy runs with unless told otherwise: the oracle for the scripted planner, the MPC
-    predictor for the classical references, the one a learned actor was trained on, else the scene's own."""
+def _policy_overrides(policy: str, scene: str) -> dict[str, object]:
+    """The scene fields a policy runs with unless told otherwise: the oracle for the scripted planner, the MPC
+    predictor for the classical references, a learned actor's own predictor and observation, else none."""
     if policy == "scripted":
-        return "oracle"
+        return {"episode__predictor": "oracle"}
     from deck_sim.policies import CLASSICAL, LearnedPolicy, policy_file
 
     if policy in CLASSICAL:
-        return "mpc"
-
+        return {"episode__predictor": "mpc"}
     path = policy_file(policy, Path(scene).stem)
-    return LearnedPolicy.load(path).predictor if path is not None else None
+    return LearnedPolicy.load(path).scene_overrides if path is not None else {}
 
 
 def _policy_label(policy: str) -> str:
@@ -98,10 +97,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from deck_sim.policies import make_policy
     from deck_sim.rollout import run_episode
 
-    overrides = {}
-    predictor = args.predictor or _default_predictor(args.policy, args.scene)
-    if predictor:
-        overrides["episode__predictor"] = predictor
+    overrides = _policy_overrides(args.policy, args.scene)
+    if args.predictor:
+        overrides["episode__predictor"] = args.predictor
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
@@ -149,8 +147,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import deck_sim
     from deck_sim.policies import make_policy
 
-    predictor = _default_predictor(args.policy, args.scene)
-    env = deck_sim.load(args.scene, seed=args.seed, **({"episode__predictor": predictor} if predictor else {}))
+    env = deck_sim.load(args.scene, seed=args.seed, **_policy_overrides(args.policy, args.scene))
     policy = make_policy(args.policy, env, seed=args.seed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

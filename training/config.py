@@ -282,23 +282,32 @@ ABLATIONS: dict[str, dict[str, Any]] = {
     "bc": {"bc_weight": 0.0},
 }
 """What each ``-no-<switch>`` arm of ``arm_config`` turns off in the tuned recipe."""
+ADDITIONS: dict[str, dict[str, Any]] = {
+    "shape": {"scene_overrides": {"episode__obstacle_shape": True}},
+}
+"""What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
+and the movers' headings in the observation, scene field ``episode.obstacle_shape``)."""
 
 
 def arm_config(
     arm: str, scene: str, steps: int, seed: int, eval_every: int = 5_000, eval_episodes: int = 50
 ) -> TrainConfig:
     """The config of a named recipe, as ``benchmarks/learning.py`` and ``scripts/train_shipped.py`` run them:
-    ``<paper|tuned>-<ddpg|mddpg>`` or ``tuned-<algo>-no-<switch>`` (a switch of ``ABLATIONS`` turned off), with
-    held-out evaluations (and checkpoints) every ``eval_every`` steps."""
+    ``<paper|tuned>-<ddpg|mddpg>``, ``tuned-<algo>-no-<switch>`` (a switch of ``ABLATIONS`` turned off) or
+    ``<preset>-<algo>-with-<switch>`` (one of ``ADDITIONS`` added), with held-out evaluations (and checkpoints)
+    every ``eval_every`` steps."""
     parts = arm.split("-")
     if len(parts) < 2 or parts[0] not in PRESETS or parts[1] not in ALGOS:
-        raise ConfigError(f"unknown recipe {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>]")
+        raise ConfigError(f"unknown recipe {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>|-with-<switch>]")
     fields: dict[str, Any] = {}
     if len(parts) > 2:
-        switch = "-".join(parts[3:]) if parts[2] == "no" else ""
-        if switch not in ABLATIONS:
-            raise ConfigError(f"unknown ablation in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}>")
-        fields.update(ABLATIONS[switch])
+        switch = "-".join(parts[3:])
+        table = {"no": ABLATIONS, "with": ADDITIONS}.get(parts[2])
+        if table is None or switch not in table:
+            raise ConfigError(
+                f"unknown switch in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}> or -with-<{'|'.join(ADDITIONS)}>"
+            )
+        fields.update(table[switch])
     return make_config(
         parts[0],
         algo=parts[1],

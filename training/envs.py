@@ -24,7 +24,9 @@ log = logging.getLogger(__name__)
 
 FAR = 1000.0
 """Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
-MOVER_KEYS = ("dynamic_obstacles", "predicted")
+MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading")
+PAD = {"dynamic_heading": 0.0}
+"""What fills the rows of movers a curriculum stage leaves out, where not ``FAR``."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,8 @@ class ObservationLayout:
         for k, shape in full.shapes.items():
             v = flat[..., sl[k]].reshape(*flat.shape[:-1], *self.shapes[k])
             if k in MOVER_KEYS and self.shapes[k][0] < shape[0]:
-                pad = np.full((*flat.shape[:-1], shape[0] - self.shapes[k][0], *shape[1:]), FAR, dtype=flat.dtype)
+                fill = PAD.get(k, FAR)
+                pad = np.full((*flat.shape[:-1], shape[0] - self.shapes[k][0], *shape[1:]), fill, dtype=flat.dtype)
                 v = np.concatenate([v, pad], axis=flat.ndim - 1)
             parts.append(v.reshape(*flat.shape[:-1], -1))
         return np.concatenate(parts, axis=-1)

@@ -184,21 +184,22 @@ def _scene_name(scene: str) -> str:
 # -- one worker's side -----------------------------------------------------------------------------------------
 
 
-def agent_predictor(agent: str, scene: str) -> str | None:
-    """The predictor an agent runs with: a learned actor's own, ``mpc`` for the classical references, the
-    oracle for ``scripted``, the scene's own for ``random`` and ``zero`` (None)."""
+def agent_overrides(agent: str, scene: str) -> dict[str, Any]:
+    """The scene fields an agent runs with (``deck_sim.load`` keywords): a learned actor's own predictor and
+    observation, ``mpc`` for the classical references, the oracle for ``scripted``, the scene's own for ``random``
+    and ``zero`` (no override)."""
     from deck_sim.policies import LearnedPolicy, policy_file
 
     label, sep, path = agent.partition("=")
     if sep:
-        return LearnedPolicy.load(path).predictor
+        return LearnedPolicy.load(path).scene_overrides
     if agent in CLASSICAL_AGENTS:
-        return REFERENCE_PREDICTOR
+        return {"episode__predictor": REFERENCE_PREDICTOR}
     if agent == "scripted":
-        return "oracle"
+        return {"episode__predictor": "oracle"}
     if agent in LEARNED_AGENTS:
-        return LearnedPolicy.load(policy_file(agent, _scene_name(scene))).predictor
-    return None
+        return LearnedPolicy.load(policy_file(agent, _scene_name(scene))).scene_overrides
+    return {}
 
 
 def make_agent(agent: str, env: Any, seed: int = 0) -> Any:
@@ -227,12 +228,11 @@ class Unit:
 _WORKER_CACHE: dict[tuple, Any] = {}
 
 
-def _worker_env(scene: str, predictor: str | None) -> Any:
+def _worker_env(scene: str, overrides: dict[str, Any]) -> Any:
     import deck_sim
 
-    key = ("env", scene, predictor)
+    key = ("env", scene, tuple(sorted(overrides.items())))
     if key not in _WORKER_CACHE:
-        overrides = {"episode__predictor": predictor} if predictor else {}
         _WORKER_CACHE[key] = deck_sim.load(scene, seed=0, **overrides)
     return _WORKER_CACHE[key]
 
@@ -245,8 +245,7 @@ def run_unit(unit: Unit) -> list[dict[str, Any]]:
     """
     from deck_sim.rollout import open_recorder, run_episode
 
-    predictor = agent_predictor(unit.agent, unit.scene)
-    env = _worker_env(unit.scene, predictor)
+    env = _worker_env(unit.scene, agent_overrides(unit.agent, unit.scene))
     key = ("policy", unit.agent, unit.scene)
     if key not in _WORKER_CACHE:
         _WORKER_CACHE[key] = make_agent(unit.agent, env, seed=unit.seed)
@@ -415,7 +414,7 @@ def evaluate(cfg: EvalConfig, progress: Callable[[int, int, list[dict]], None] |
     cfg.validate()
     for scene in cfg.scenes:  # fail before any worker starts: every agent file exists and loads
         for agent in cfg.agents:
-            agent_predictor(agent, scene)
+            agent_overrides(agent, scene)
     units = plan_units(cfg)
     workers = cfg.workers or os.cpu_count() or 1
     total = sum(len(u.indices) for u in units)

@@ -167,6 +167,10 @@ class EpisodeSpec:
     """Which predictor fills the observation's predicted part."""
     collision_checks: int = 5
     """Contact checks per control step (the fused physics substeps are split this many times)."""
+    obstacle_shape: bool = False
+    """Also observe the shape of every obstacle: the nearest point of each static obstacle's and each mover's
+    footprint (``static_nearest``, ``dynamic_nearest``, relative to the agent, in the same order as their centres)
+    and each mover's heading (``dynamic_heading``, cos and sin). Off by default (the paper's observation)."""
 
 
 @dataclass(frozen=True)

@@ -251,6 +251,8 @@ class Navigate(composer.Task):
         shapes = {"target": (2,), "static_obstacles": (m, 2), "dynamic_obstacles": (n, 2)}
         if self._horizon > 0:
             shapes["predicted"] = (n, self._horizon, 2)
+        if self.spec.episode.obstacle_shape:
+            shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
         self._obs_shapes = shapes
         self._obs = {k: np.zeros(v) for k, v in shapes.items()}  # until the first episode starts
@@ -836,6 +838,11 @@ class Navigate(composer.Task):
         }
         if self._horizon > 0:
             obs["predicted"] = self._prediction.positions[order_m] - agent_xy
+        if self.spec.episode.obstacle_shape:
+            obs["static_nearest"] = self._static_fp.nearest_points(agent_xy)[order_s] - agent_xy
+            obs["dynamic_nearest"] = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
+            yaw = st["yaw"][1:][order_m]
+            obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
         obs["position"] = agent_xy.copy()
         obs["velocity"] = st["vel"][0].copy()
         obs["heading"] = np.array([np.cos(st["yaw"][0]), np.sin(st["yaw"][0])])
