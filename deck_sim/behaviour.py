@@ -1,4 +1,4 @@
-"""Purposeful motion of the movers (paper's assumptions 1-3), vectorised over all movers.
+"""Purposeful motion of the movers (paper's assumptions 1-3), commanded for all movers at once.
 
 Each mover picks a special spot, plans the shortest route around the static obstacles to it, drives the route
 at a cruise speed drawn for this trip, brakes to a stop at the spot, dwells a random time, then picks another
@@ -11,7 +11,9 @@ waited on the agent longer than ``max_yield_time`` heads for another spot.
 
 The behaviour only *commands*: it returns desired velocities once per control step and the vehicles' actuators
 produce the motion, so accelerations and turn rates are physical. Randomness comes only from the generator
-passed to ``reset``. Numpy only; the task feeds it measured positions, headings and speeds.
+passed to ``reset``. Numpy and ``math`` only; the task feeds it measured positions, headings and speeds. The
+per-step ``command`` is the control step's hot path: with 5-13 movers numpy's cost per call outweighs its work,
+so it runs on plain Python floats and looks only at the pairs of movers near enough to matter.
 """
 
 from __future__ import annotations
@@ -274,9 +276,10 @@ class MoverBehaviour:
             agent_xy: (2,) the agent's position, metres.
             agent_yaw: the agent's heading, radians (turns ``agent_parts``).
 
-        With 5-13 movers, numpy's per-call cost outweighs its work, so only the transcendental functions run
-        in numpy (one call over all movers each, as they always have: their results stay bit-identical) and
-        the rest is Python float arithmetic in the same order of operations.
+        Only the transcendental functions run in numpy, one call over all movers each as in the vectorised
+        version this replaced (so their results stay bit-identical); the rest is Python float arithmetic in the
+        same order of operations, which gives the same commands bit for bit (``tests/test_behaviour.py``, golden
+        closed loop) for finite inputs.
         """
         p = self.params
         n = len(self.radii)
