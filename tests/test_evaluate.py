@@ -2,13 +2,12 @@
 
 import csv
 import json
-import math
 
 import pytest
 
 from deck_sim.scenes import SceneSpecError
 from training.cli import main
-from training.evaluate import EvalConfig, EvalError, evaluate, write_report
+from training.evaluate import EvalConfig, EvalError, evaluate, same_results, write_report
 
 SMALL = dict(agents=("mddpg", "apf"), scenes=("deck1",), episodes=3, chunk=2, workers=2, record="none")
 
@@ -18,16 +17,29 @@ def serial():
     return evaluate(EvalConfig(backend="serial", **SMALL))
 
 
-def test_process_pool_gives_the_serial_results(serial):
-    pooled = evaluate(EvalConfig(backend="process", **SMALL))
-    assert pooled.episodes == serial.episodes
-    assert pooled.summaries == serial.summaries
+def test_process_pool_gives_the_serial_results_and_each_unit_its_log(serial, tmp_path):
+    from deck_sim.recording import EpisodeLog
+
+    pooled = evaluate(EvalConfig(backend="process", **{**SMALL, "record": "all", "out": str(tmp_path)}))
+    assert same_results(pooled.episodes, serial.episodes)
+    assert same_results(pooled.summaries, serial.summaries)
+    names = sorted(p.name for p in (tmp_path / "logs").glob("*.mcap"))
+    assert names == ["deck1-apf-0000.mcap", "deck1-apf-0002.mcap", "deck1-mddpg-0000.mcap", "deck1-mddpg-0002.mcap"]
+    assert [len(EpisodeLog(tmp_path / "logs" / n).episodes) for n in names] == [2, 1, 2, 1]
+    logged = EpisodeLog(tmp_path / "logs" / "deck1-mddpg-0002.mcap").episodes[0].rescore().result
+    assert logged.reward == serial.episodes[2]["reward"]  # the logged episode is the one measured
 
 
 def test_ray_gives_the_serial_results(serial):
     pytest.importorskip("ray")
     remote = evaluate(EvalConfig(backend="ray", **SMALL))
-    assert remote.episodes == serial.episodes
+    assert same_results(remote.episodes, serial.episodes)
+    assert same_results(remote.summaries, serial.summaries)
+
+
+def test_results_compare_nan_as_equal():
+    assert same_results([{"x": float("nan"), "y": 1.0}], [{"x": float("nan"), "y": 1.0}])
+    assert not same_results([{"x": float("nan")}], [{"x": 0.0}])
 
 
 def test_episodes_are_seeded_per_index_and_below_training_seeds(serial):
@@ -51,10 +63,10 @@ def test_summaries_follow_the_episodes(serial):
         lo, hi = s["goal_ci"]
         assert 0.0 <= lo <= s["goal_rate"] <= hi <= 1.0
         if wins:
-            assert s["path_ratio"] == pytest.approx(
+            assert s["shortest_ratio"] == pytest.approx(
                 sum(r["path_length"] / r["shortest_path"] for r in wins) / len(wins)
             )
-            assert s["path_ratio"] >= 0.98  # the reference is a lower bound (up to the graph's 5 cm node margin)
+            assert s["shortest_ratio"] >= 0.98  # the reference is a lower bound (up to the graph's 5 cm node margin)
         assert s["predictor"] == "mpc"
         assert s["ade"] > 0 and s["fde"] >= s["ade"]
 
@@ -68,8 +80,10 @@ def test_the_report_files_hold_the_results(serial, tmp_path):
     assert [float(r["reward"]) for r in rows] == [r["reward"] for r in serial.episodes]
     md = paths["results.md"].read_text()
     mddpg = serial.summary("deck1", "mddpg")
-    assert f"| mddpg | {100 * mddpg['goal_rate']:.1f} (" in md
-    assert "98" in md  # the paper's deck 1 MDDPG success beside ours
+    lo, hi = mddpg["goal_ci"]
+    # ours with its interval, then the paper's deck 1 MDDPG success (Table 1)
+    assert f"| mddpg | {100 * mddpg['goal_rate']:.1f} ({100 * lo:.0f}-{100 * hi:.0f}) | 98 |" in md
+    assert "| apf | " in md and "| deck1 ours | deck1 paper |" in md
     assert not list(tmp_path.glob("*.tmp"))
 
 
@@ -78,6 +92,7 @@ def test_the_report_files_hold_the_results(serial, tmp_path):
     [
         ({"agents": ("telepathic",)}, EvalError, "unknown agent 'telepathic'"),
         ({"agents": ("apf", "apf")}, EvalError, "repeat"),
+        ({"scenes": ("deck1", "deck1")}, EvalError, "scenes repeat"),
         ({"scenes": ("deck9",)}, SceneSpecError, "deck9"),
         ({"episodes": 0}, EvalError, "episodes"),
         ({"backend": "slurm"}, EvalError, "unknown backend 'slurm'"),
@@ -118,9 +133,28 @@ def test_cli_eval_writes_tables_logs_and_trajectory_plots(tmp_path, capsys):
 
     assert len(EpisodeLog(out / "logs" / "deck1-astar-0000.mcap").episodes) == 1
     summary = json.loads((out / "summary.json").read_text())
-    assert all(not (isinstance(v, float) and math.isnan(v)) for s in summary["summaries"] for v in s.values())
+    random = next(s for s in summary["summaries"] if s["agent"] == "random")
+    if random["goal_rate"] == 0:  # no success: no path length, written as null (JSON has no NaN)
+        assert random["path_length"] is None
 
 
 def test_cli_eval_rejects_a_bad_agent_with_exit_code_2(capsys):
     assert main(["eval", "--agents", "apf,nope", "--scenes", "deck1", "--episodes", "1", "--quiet"]) == 2
     assert "unknown agent 'nope'" in capsys.readouterr().err
+
+
+def test_cli_eval_checks_curve_folders_before_running(tmp_path, capsys):
+    rc = main(["eval", "--agents", "apf", "--scenes", "deck1", "--episodes", "1", "--quiet",
+               "--curves", f"mine={tmp_path / 'nothing'}", "--out", str(tmp_path / "ev")])  # fmt: skip
+    assert rc == 2
+    assert "eval.csv does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "ev").exists()  # nothing ran, nothing written
+
+
+def test_a_scene_file_is_reported_under_its_spec_name(tmp_path):
+    from deck_sim.scenes import dump_scene, load_scene
+
+    path = tmp_path / "mydeck.toml"
+    path.write_text(dump_scene(load_scene("deck1")))
+    res = evaluate(EvalConfig(agents=("zero",), scenes=(str(path),), episodes=1, backend="serial", record="none"))
+    assert res.summary("deck1", "zero")["episodes"] == 1

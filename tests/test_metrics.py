@@ -9,11 +9,13 @@ from hypothesis import strategies as st
 
 from deck_sim.geometry import Footprints
 from deck_sim.metrics import (
+    Z95,
     mean_interval,
     near_misses,
     path_length,
     rate_interval,
     shortest_path,
+    t975,
     turning_angle,
 )
 
@@ -80,7 +82,7 @@ def test_wilson_intervals_by_hand():
 
 def test_mean_interval_by_hand():
     m, lo, hi = mean_interval([1.0, 2.0, 3.0, 4.0])
-    half = 1.959963984540054 * np.std([1, 2, 3, 4], ddof=1) / 2.0
+    half = 3.1824 * np.std([1, 2, 3, 4], ddof=1) / 2.0  # Student's t, 3 degrees of freedom
     assert (m, lo, hi) == pytest.approx((2.5, 2.5 - half, 2.5 + half))
     assert mean_interval([7.0]) == (7.0, 7.0, 7.0)
     assert all(math.isnan(v) for v in mean_interval([]))
@@ -111,3 +113,12 @@ def test_shortest_path_lies_between_the_straight_line_and_a_detour(cx, cy, hx, h
     top = cy + hy + radius + 1.0 + (hx + radius)  # above the octagon's diagonal faces
     detour = path_length(np.array([start, [cx - hx - radius - 1, top], [cx + hx + radius + 1, top], goal]))
     assert length <= detour + 1e-6
+
+
+def test_t_quantiles_match_scipy():
+    stats = pytest.importorskip("scipy.stats")
+    for df in (1, 2, 5, 29, 30, 31, 45, 100, 1000):
+        assert t975(df) == pytest.approx(float(stats.t.ppf(0.975, df)), abs=2e-4)
+    assert t975(10**9) == pytest.approx(Z95, abs=1e-6)
+    with pytest.raises(ValueError):
+        t975(0)

@@ -428,6 +428,14 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         near_miss=args.near_miss,
     )
     cfg.validate()
+    curves = []
+    for item in args.curves:  # checked before any episode runs
+        label, _, run = item.partition("=")
+        if not label or not run:
+            raise ValueError(f"--curves {item!r}: expected LABEL=RUN_FOLDER")
+        if not (Path(run) / "eval.csv").exists():
+            raise ValueError(f"--curves {item!r}: {Path(run) / 'eval.csv'} does not exist (not a deck-sim train run)")
+        curves.append((label, run))
     total = args.episodes * len(cfg.agents) * len(cfg.scenes)
     bar = tqdm(total=total, desc=f"eval ({cfg.backend})", unit="ep", disable=args.quiet)
     wins: dict[str, list[int]] = {}
@@ -446,12 +454,6 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     paths = write_report(res, args.out)
     print((Path(args.out) / "results.md").read_text())
     figures = plot_trajectories(res, Path(args.out) / "trajectories")
-    curves = []
-    for item in args.curves:
-        label, _, run = item.partition("=")
-        if not run:
-            raise ValueError(f"--curves {item!r}: expected label=RUN_FOLDER")
-        curves.append((label, run))
     if curves:
         figures.append(plot_learning_curves(dict(curves), Path(args.out) / "learning_curves.png"))
     print(f"{total} episodes in {res.wall_s:.1f} s ({cfg.backend}); wrote " + ", ".join(str(p) for p in paths.values()))
@@ -592,7 +594,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.func(args))
-    except (SceneSpecError, ValueError) as err:
+    except (SceneSpecError, ValueError, OSError) as err:
         print(f"deck-sim {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -130,8 +130,9 @@ class EvalConfig:
         labels = [agent_label(a) for a in self.agents]
         if len(set(labels)) != len(labels):
             raise EvalError(f"agent names repeat: {labels}")
-        for s in self.scenes:
-            load_scene(s)
+        names = [load_scene(s).name for s in self.scenes]
+        if len(set(names)) != len(names):
+            raise EvalError(f"scenes repeat (by their spec names): {names}")
         if self.episodes < 1:
             raise EvalError(f"episodes must be at least 1, got {self.episodes}")
         if self.seed < 0 or self.seed + self.episodes > TRAIN_SEED_BASE:
@@ -178,7 +179,10 @@ def record_count(record: str, episodes: int) -> int:
 
 
 def _scene_name(scene: str) -> str:
-    return Path(scene).stem if scene.endswith(".toml") else scene
+    """The name a scene's episodes are reported under: its spec's ``name`` (a TOML file's may differ from its stem)."""
+    from deck_sim.scenes import load_scene
+
+    return load_scene(scene).name
 
 
 # -- one worker's side -----------------------------------------------------------------------------------------
@@ -294,6 +298,7 @@ def run_unit(unit: Unit) -> list[dict[str, Any]]:
                 predictor=task.predictor.name,
                 shortest_path=reference,
                 near_misses=near_misses(np.array(trace["clear"]), threshold),
+                near_miss_m=threshold,
                 ade=ade,
                 fde=fde,
                 prediction_samples=samples,
@@ -320,7 +325,7 @@ def plan_units(cfg: EvalConfig) -> list[Unit]:
                 logged = tuple(i for i in idx if i < n_record)
                 path = None
                 if cfg.out is not None and logged:
-                    path = str(Path(cfg.out) / "logs" / f"{_scene_name(scene)}-{label}-{first:04d}.mcap")
+                    path = str(Path(cfg.out).resolve() / "logs" / f"{_scene_name(scene)}-{label}-{first:04d}.mcap")
                 units.append(Unit(agent, scene, logged, cfg.seed, path, cfg.near_miss))
                 rest = tuple(i for i in idx if i >= n_record)
                 if rest:
@@ -333,14 +338,24 @@ def _serial(units: Sequence[Unit]) -> Iterator[list[dict]]:
         yield run_unit(u)
 
 
+def _fresh_worker() -> None:
+    """A forked worker starts without the parent's environments and policies (as a spawned one would)."""
+    _WORKER_CACHE.clear()
+
+
 def _process(units: Sequence[Unit], workers: int) -> Iterator[list[dict]]:
     method = "fork" if platform.system() == "Linux" else "spawn"
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method)) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method), initializer=_fresh_worker)
+    try:
         pending = {pool.submit(run_unit, u) for u in units}
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
                 yield f.result()
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)  # a failed unit stops the run: drop what has not started
+        raise
+    pool.shutdown(wait=True)
 
 
 def _ray(units: Sequence[Unit], workers: int, address: str | None) -> Iterator[list[dict]]:
@@ -377,6 +392,8 @@ class EvalResults:
     """One record per episode, sorted by scene, agent and episode index."""
     summaries: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
+    logs: list[str] = field(default_factory=list)
+    """The MCAP logs this evaluation wrote (one per recorded work unit)."""
 
     def summary(self, scene: str, agent: str) -> dict[str, Any]:
         """The summary of ``agent`` on ``scene``; KeyError if it was not evaluated."""
@@ -402,6 +419,7 @@ class EvalResults:
             [r for p in parts for r in p.episodes],
             [s for p in parts for s in p.summaries],
             sum(p.wall_s for p in parts),
+            [path for p in parts for path in p.logs],
         )
 
 
@@ -435,9 +453,14 @@ def evaluate(cfg: EvalConfig, progress: Callable[[int, int, list[dict]], None] |
         (_scene_name(s), agent_label(a)): k for k, (s, a) in enumerate((s, a) for s in cfg.scenes for a in cfg.agents)
     }
     rows.sort(key=lambda r: (order[(r["scene"], r["agent"])], r["episode"]))
-    res = EvalResults(cfg, rows, wall_s=wall)
+    res = EvalResults(cfg, rows, wall_s=wall, logs=sorted({u.log_path for u in units if u.log_path}))
     res.summaries = [summarize_agent(rows, _scene_name(s), agent_label(a)) for s in cfg.scenes for a in cfg.agents]
     return res
+
+
+def same_results(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> bool:
+    """Whether two lists of records (episodes or summaries) are equal, NaN equal to NaN."""
+    return json.dumps(_jsonable(list(a)), sort_keys=True) == json.dumps(_jsonable(list(b)), sort_keys=True)
 
 
 # -- summaries and reports -------------------------------------------------------------------------------------
@@ -465,7 +488,7 @@ def summarize_agent(rows: Sequence[dict[str, Any]], scene: str, agent: str) -> d
     for name, values in (
         ("reward", [r["reward"] for r in mine]),
         ("path_length", [r["path_length"] for r in ok]),
-        ("path_ratio", ratios),
+        ("shortest_ratio", ratios),
         ("turning_deg", [r["turning_angle_deg"] for r in ok]),
         ("time_to_goal", [r["sim_time"] for r in ok]),
         ("min_clearance", [r["min_clearance"] for r in mine]),
@@ -474,6 +497,7 @@ def summarize_agent(rows: Sequence[dict[str, Any]], scene: str, agent: str) -> d
         m, lo, hi = mean_interval(values)
         out[name], out[f"{name}_ci"] = m, [lo, hi]
     out["worst_clearance"] = float(min(r["min_clearance"] for r in mine))
+    out["near_miss_m"] = float(mine[0]["near_miss_m"])
     scored = [r for r in mine if r["prediction_samples"] > 0]
     weights = np.array([r["prediction_samples"] for r in scored], dtype=np.float64)
     for name in ("ade", "fde"):
@@ -528,10 +552,13 @@ def markdown_tables(res: EvalResults) -> str:
     n = res.config.episodes
     lines = [
         f"Each cell: {n} held-out episodes per scene and agent (seeds {res.config.seed}-{res.config.seed + n - 1}); "
-        "rates in % with Wilson 95 % intervals, means ± the half-width of their normal 95 % interval. "
-        "Path length, path ratio and turning angle are over successful episodes, as in the paper.",
+        "rates in % with Wilson 95 % intervals, means ± the half-width of their Student-t 95 % interval. "
+        "Path length, its ratio and turning angle are over successful episodes, as in the paper. "
+        "`apf`, `astar`, `mpc` and `scripted` plan on the task's privileged view (every obstacle's exact footprint "
+        "and the movers' forecast), not on the observation the learned agents get.",
         "",
-        "**Success rate, % (paper Table 1)**",
+        "**Success rate, % (paper Table 1)**: the paper's figure is the mean of 100 success rates sampled from its "
+        "training curves in Unity; ours is the shipped policy on held-out episodes.",
         "",
         "| agent | " + " | ".join(f"{s} ours | {s} paper" for s in scenes) + " |",
         "|---|" + "---:|---:|" * len(scenes),
@@ -544,8 +571,9 @@ def markdown_tables(res: EvalResults) -> str:
         lines.append(f"| {a} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        "**Path length and turning angle (paper Tables 2-3)**: ours as metres and as a ratio to the shortest "
-        "collision-free path around the static obstacles (the paper's Unity units do not convert); turning angle "
+        "**Path length and turning angle (paper Tables 2-3)**: ours in metres and as a ratio to the shortest path "
+        "around the static obstacles of a disc as wide as the agent's narrowest half-extent, ending on the goal "
+        "disc (a lower bound of any collision-free path; the paper's Unity units do not convert); turning angle "
         "in degrees per episode.",
         "",
         "| agent | scene | length m | length / shortest | turning deg | paper length (Unity) | paper turning deg |",
@@ -557,7 +585,7 @@ def markdown_tables(res: EvalResults) -> str:
             if x is None:
                 continue
             lines.append(
-                f"| {a} | {s} | {_num(x, 'path_length')} | {_num(x, 'path_ratio', '.3f')} | "
+                f"| {a} | {s} | {_num(x, 'path_length')} | {_num(x, 'shortest_ratio', '.3f')} | "
                 f"{_num(x, 'turning_deg')} | {_paper('path_length', s, a, '.2f')} | "
                 f"{_paper('turning_deg', s, a, '.2f')} |"
             )
@@ -566,9 +594,13 @@ def markdown_tables(res: EvalResults) -> str:
         "**Reward and safety** (the paper gives reward only as curves: about 150 at the plateau for DQN, DDPG and "
         "MDDPG, about 100 for A2C, on its own reward constants)",
         "",
-        "| agent | scene | predictor | collision % | timeout % | mean reward | time to goal s | near misses / ep "
-        "| min clearance m | ADE m | FDE m |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "",
+        "Near misses: passes closer than the threshold (clearance between the agent's disc and an obstacle's "
+        "footprint); worst clearance: the smallest over all episodes (negative: the discs overlapped).",
+        "",
+        "| agent | scene | predictor | collision % | timeout % | off surface % | diverged % | mean reward "
+        "| time to goal s | near misses / ep (threshold) | worst clearance m | ADE m | FDE m |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in scenes:
         for a in agents:
@@ -579,7 +611,8 @@ def markdown_tables(res: EvalResults) -> str:
             fde = "-" if math.isnan(x["fde"]) else f"{x['fde']:.2f}"
             lines.append(
                 f"| {a} | {s} | {x['predictor']} | {_pct(x, 'collision')} | {_pct(x, 'timeout')} | "
-                f"{_num(x, 'reward')} | {_num(x, 'time_to_goal')} | {_num(x, 'near_misses', '.2f')} | "
+                f"{_pct(x, 'off_surface')} | {_pct(x, 'diverged')} | {_num(x, 'reward')} | "
+                f"{_num(x, 'time_to_goal')} | {_num(x, 'near_misses', '.2f')} ({x['near_miss_m']:g} m) | "
                 f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
             )
     return "\n".join(lines) + "\n"
@@ -691,12 +724,10 @@ def plot_trajectories(res: EvalResults, out_dir: str | os.PathLike[str], per_age
     from deck_sim.recording import EpisodeLog
     from deck_sim.recording.plot import plot_episode
 
-    if res.config.out is None:
-        return []
     out_dir = Path(out_dir)
     written = []
-    for path in sorted((Path(res.config.out) / "logs").glob("*.mcap")):
-        if not path.stem.endswith("-0000"):
+    for path in map(Path, res.logs):
+        if not path.stem.endswith("-0000"):  # the first unit of each scene and agent holds its first episodes
             continue
         episodes = EpisodeLog(path).episodes
         for ep in episodes[:per_agent]:
@@ -716,6 +747,7 @@ __all__ = [
     "plot_learning_curves",
     "plot_trajectories",
     "run_unit",
+    "same_results",
     "summarize_agent",
     "write_report",
 ]
