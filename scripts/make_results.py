@@ -19,10 +19,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
@@ -38,6 +40,7 @@ from training.evaluate import (  # noqa: E402
     markdown_tables,
     plot_learning_curves,
     plot_trajectories,
+    summarize_agent,
     write_report,
 )
 
@@ -60,6 +63,37 @@ def training_figures(scene: str, agent: str) -> dict | None:
     if "train_steps" in data:  # the first format held MDDPG alone
         return data if agent == "mddpg" else None
     return data.get(agent)
+
+
+def fingerprint(cfg: EvalConfig) -> str:
+    """A digest of everything a scene's evaluation depends on: the settings, the Python sources of ``deck_sim``
+    and ``training``, the scene files and the shipped policy files."""
+    digest = hashlib.sha256(json.dumps(asdict(cfg), sort_keys=True).encode())
+    files = sorted((ROOT / "deck_sim").rglob("*.py")) + sorted((ROOT / "training").rglob("*.py"))
+    files += sorted((ROOT / "deck_sim" / "scenes").glob("*.toml")) + sorted(TRAINED_DIR.glob("*.npz"))
+    for f in files:
+        digest.update(str(f.relative_to(ROOT)).encode())
+        digest.update(f.read_bytes())
+    return digest.hexdigest()
+
+
+NUMERIC = ("shortest_path", "ade", "fde", "path_length", "min_clearance", "reward")
+
+
+def load_scene_report(folder: Path, cfg: EvalConfig, key: str) -> EvalResults | None:
+    """The evaluation saved in ``folder`` if its fingerprint is ``key``, else None."""
+    try:
+        meta = json.loads((folder / "fingerprint.json").read_text())
+        data = json.loads((folder / "summary.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if meta.get("key") != key:
+        return None
+    episodes = [
+        {k: (float("nan") if v is None and k in NUMERIC else v) for k, v in r.items()} for r in data["episodes"]
+    ]
+    summaries = [summarize_agent(episodes, s, a) for s in {r["scene"] for r in episodes} for a in cfg.agents]
+    return EvalResults(cfg, episodes, summaries, float(meta["wall_s"]), list(meta["logs"]))
 
 
 def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dict[str, list[str]]) -> list[str]:
@@ -113,6 +147,12 @@ def main() -> None:
     parser.add_argument("--out", default="runs/results", help="folder for the full report and the episode logs")
     parser.add_argument("--runs", default="runs/learning", help="training run folders (learning curves)")
     parser.add_argument("--doc", default=str(ROOT / "docs" / "results.md"))
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="reuse a scene's report in --out/<scene> when the code, scene files, policy files and settings are the "
+        "same (evaluate scenes as their policies are shipped, then write the page)",
+    )
     args = parser.parse_args()
     agents = [a for a in args.agents.split(",") if a]
     scenes = [s for s in args.scenes.split(",") if s]
@@ -130,8 +170,18 @@ def main() -> None:
             cfg = EvalConfig(
                 agents=plan[scene], scenes=(scene,), episodes=args.episodes, workers=args.workers, out=args.out
             )
+            cache = Path(args.out) / scene
+            key = fingerprint(cfg)
+            if args.reuse and (cached := load_scene_report(cache, cfg, key)) is not None:
+                print(f"{scene}: reusing {cache} (same code, scenes, policies and settings)", file=sys.stderr)
+                bar.update(args.episodes * len(plan[scene]))
+                parts.append(cached)
+                continue
             base = bar.n
-            parts.append(evaluate(cfg, progress=lambda done, total, batch, base=base: bar.update(base + done - bar.n)))
+            part = evaluate(cfg, progress=lambda done, total, batch, base=base: bar.update(base + done - bar.n))
+            write_report(part, cache)
+            (cache / "fingerprint.json").write_text(json.dumps({"key": key, "logs": part.logs, "wall_s": part.wall_s}))
+            parts.append(part)
     res = EvalResults.merge(parts)
     cfg = res.config
     write_report(res, args.out)
