@@ -4,8 +4,8 @@
 
 Both runs play the same seeded episodes (``training.evaluate``, no logs); the script checks that their results are
 identical, then prints the wall time of each, the speed-up and the parallel efficiency (serial time / (workers x
-parallel time)). The pool's time includes starting its workers and building their environments (a forked worker
-starts without the parent's). Targets (issue 6):
+parallel time)). Every run starts cold: the pool's time includes building the environment and policy (once, in the
+parent, which the forked workers inherit) and starting its workers. Targets (issue 6):
 at most 60 s for 100 episodes with 2 workers, efficiency at least 0.8. ``--ray`` adds a local Ray run.
 """
 
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mujoco  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.evaluate import EvalConfig, evaluate, same_results  # noqa: E402
+from training.evaluate import EvalConfig, clear_worker_cache, evaluate, same_results  # noqa: E402
 
 
 def main() -> None:
@@ -41,6 +41,7 @@ def main() -> None:
     print(machine(mujoco=mujoco.__version__))
     print(f"load average before: {os.getloadavg()[0]:.2f}")
     base = dict(agents=(args.agent,), scenes=(args.scene,), episodes=args.episodes, chunk=args.chunk, record="none")
+    clear_worker_cache()
     t0 = time.perf_counter()
     serial = evaluate(EvalConfig(backend="serial", **base))
     t_serial = time.perf_counter() - t0
@@ -52,6 +53,7 @@ def main() -> None:
     )
     runs = [("process pool", "process")] + ([("ray", "ray")] if args.ray else [])
     for label, backend in runs:
+        clear_worker_cache()  # each run builds its environment and policy once, as the serial one did
         t0 = time.perf_counter()
         par = evaluate(EvalConfig(backend=backend, workers=args.workers, **base))
         t_par = time.perf_counter() - t0
