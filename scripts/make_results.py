@@ -19,6 +19,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
+import csv  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
@@ -203,8 +204,10 @@ def main() -> None:
             for agent, run in runs.items():
                 cfg_path = run / "config.json"
                 c = json.loads(cfg_path.read_text()) if cfg_path.exists() else {}
-                episodes, seed = c.get("eval_episodes", "?"), c.get("eval_seed", "?")
-                how.append(f"{agent}: `{run}/eval.csv`, {episodes} episodes of the seed-{seed} stream per point")
+                with open(run / "eval.csv") as f:
+                    episodes = sorted({r["episodes"] for r in csv.DictReader(f)})
+                stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
+                how.append(f"{agent}: `{run}/eval.csv`, {'/'.join(episodes)} episodes of {stream} per point")
             curve_lines.append(
                 f"*{scene}: held-out average reward and success against training steps ({'; '.join(how)}).*"
             )
