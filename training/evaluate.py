@@ -554,6 +554,15 @@ def _find(res: EvalResults, scene: str, agent: str) -> dict[str, Any] | None:
         return None
 
 
+def _evaluated(res: EvalResults, scenes: list[str], agents: list[str]) -> Iterator[tuple[str, str, dict[str, Any]]]:
+    """(scene, agent, summary) of every pair that was evaluated, scene-major."""
+    for s in scenes:
+        for a in agents:
+            x = _find(res, s, a)
+            if x is not None:
+                yield s, a, x
+
+
 def markdown_tables(res: EvalResults) -> str:
     """The paper's tables (success; path length and turning angle) with ours beside them, then every metric.
 
@@ -591,21 +600,16 @@ def markdown_tables(res: EvalResults) -> str:
         "| agent | scene | length m | length / shortest | turning deg | paper length (Unity) | paper turning deg |",
         "|---|---|---:|---:|---:|---:|---:|",
     ]
-    for s in scenes:
-        for a in agents:
-            x = _find(res, s, a)
-            if x is None:
-                continue
-            lines.append(
-                f"| {a} | {s} | {_num(x, 'path_length')} | {_num(x, 'shortest_ratio', '.3f')} | "
-                f"{_num(x, 'turning_deg')} | {_paper('path_length', s, a, '.2f')} | "
-                f"{_paper('turning_deg', s, a, '.2f')} |"
-            )
+    for s, a, x in _evaluated(res, scenes, agents):
+        lines.append(
+            f"| {a} | {s} | {_num(x, 'path_length')} | {_num(x, 'shortest_ratio', '.3f')} | "
+            f"{_num(x, 'turning_deg')} | {_paper('path_length', s, a, '.2f')} | "
+            f"{_paper('turning_deg', s, a, '.2f')} |"
+        )
     lines += [
         "",
         "**Reward and safety** (the paper gives reward only as curves: about 150 at the plateau for DQN, DDPG and "
         "MDDPG, about 100 for A2C, on its own reward constants)",
-        "",
         "",
         "Near misses: passes closer than the threshold (clearance between the agent's disc and an obstacle's "
         "footprint); worst clearance: the smallest over all episodes (negative: the discs overlapped).",
@@ -614,19 +618,15 @@ def markdown_tables(res: EvalResults) -> str:
         "| time to goal s | near misses / ep (threshold) | worst clearance m | ADE m | FDE m |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for s in scenes:
-        for a in agents:
-            x = _find(res, s, a)
-            if x is None:
-                continue
-            ade = "-" if math.isnan(x["ade"]) else f"{x['ade']:.2f}"
-            fde = "-" if math.isnan(x["fde"]) else f"{x['fde']:.2f}"
-            lines.append(
-                f"| {a} | {s} | {x['predictor']} | {_pct(x, 'collision')} | {_pct(x, 'timeout')} | "
-                f"{_pct(x, 'off_surface')} | {_pct(x, 'diverged')} | {_num(x, 'reward')} | "
-                f"{_num(x, 'time_to_goal')} | {_num(x, 'near_misses', '.2f')} ({x['near_miss_m']:g} m) | "
-                f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
-            )
+    for s, a, x in _evaluated(res, scenes, agents):
+        ade = "-" if math.isnan(x["ade"]) else f"{x['ade']:.2f}"
+        fde = "-" if math.isnan(x["fde"]) else f"{x['fde']:.2f}"
+        lines.append(
+            f"| {a} | {s} | {x['predictor']} | {_pct(x, 'collision')} | {_pct(x, 'timeout')} | "
+            f"{_pct(x, 'off_surface')} | {_pct(x, 'diverged')} | {_num(x, 'reward')} | "
+            f"{_num(x, 'time_to_goal')} | {_num(x, 'near_misses', '.2f')} ({x['near_miss_m']:g} m) | "
+            f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
+        )
     return "\n".join(lines) + "\n"
 
 
