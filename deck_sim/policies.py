@@ -260,6 +260,22 @@ def policy_file(name: str, scene: str) -> Path | None:
     return None
 
 
+REFERENCE_PREDICTOR = "mpc"
+"""The predictor whose forecast the classical references plan around (the one MDDPG is trained on)."""
+
+
+def policy_overrides(name: str, scene: str) -> dict[str, Any]:
+    """The scene fields (``deck_sim.load`` keywords) policy ``name`` runs with on ``scene`` unless told otherwise:
+    the oracle for ``scripted``, ``REFERENCE_PREDICTOR`` for the classical references, a learned actor's own
+    predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and ``zero``."""
+    if name == "scripted":
+        return {"episode__predictor": "oracle"}
+    if name in CLASSICAL:
+        return {"episode__predictor": REFERENCE_PREDICTOR}
+    path = policy_file(name, scene)
+    return LearnedPolicy.load(path).scene_overrides if path is not None else {}
+
+
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
     """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``apf``, ``astar``, ``mpc``,
     ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an actor file (a path

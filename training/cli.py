@@ -71,19 +71,6 @@ def _format_summary(name: str, policy: str, predictor: str, summary: dict[str, f
     return "\n".join(lines)
 
 
-def _policy_overrides(policy: str, scene: str) -> dict[str, object]:
-    """The scene fields a policy runs with unless told otherwise: the oracle for the scripted planner, the MPC
-    predictor for the classical references, a learned actor's own predictor and observation, else none."""
-    if policy == "scripted":
-        return {"episode__predictor": "oracle"}
-    from deck_sim.policies import CLASSICAL, LearnedPolicy, policy_file
-
-    if policy in CLASSICAL:
-        return {"episode__predictor": "mpc"}
-    path = policy_file(policy, Path(scene).stem)
-    return LearnedPolicy.load(path).scene_overrides if path is not None else {}
-
-
 def _policy_label(policy: str) -> str:
     """A policy's name for folder names (an actor file's stem)."""
     return Path(policy).stem if policy.endswith(".npz") else policy
@@ -94,10 +81,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     import deck_sim
     from deck_sim.metrics import summarize
-    from deck_sim.policies import make_policy
+    from deck_sim.policies import make_policy, policy_overrides
     from deck_sim.rollout import run_episode
 
-    overrides = _policy_overrides(args.policy, args.scene)
+    overrides = policy_overrides(args.policy, Path(args.scene).stem)
     if args.predictor:
         overrides["episode__predictor"] = args.predictor
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
@@ -145,9 +132,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import imageio.v3 as iio
 
     import deck_sim
-    from deck_sim.policies import make_policy
+    from deck_sim.policies import make_policy, policy_overrides
 
-    env = deck_sim.load(args.scene, seed=args.seed, **_policy_overrides(args.policy, args.scene))
+    env = deck_sim.load(args.scene, seed=args.seed, **policy_overrides(args.policy, Path(args.scene).stem))
     policy = make_policy(args.policy, env, seed=args.seed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -51,11 +51,10 @@ log = logging.getLogger(__name__)
 LEARNED_AGENTS = ("mddpg", "ddpg", "dqn", "a2c")
 """Agents trained by ``deck-sim train`` and shipped per scene in ``deck_sim/trained``."""
 CLASSICAL_AGENTS = ("apf", "astar", "mpc")
-"""Classical references of ``deck_sim.control.planners``; they plan around ``REFERENCE_PREDICTOR``'s forecast."""
+"""Classical references of ``deck_sim.control.planners``; they plan around the forecast of
+``deck_sim.policies.REFERENCE_PREDICTOR``."""
 OTHER_AGENTS = ("scripted", "random", "zero")
 AGENTS = LEARNED_AGENTS + CLASSICAL_AGENTS + OTHER_AGENTS
-REFERENCE_PREDICTOR = "mpc"
-"""The predictor whose forecast the classical references plan around (the one MDDPG is trained on)."""
 DEFAULT_SEED = 100_000
 """Seed of episode 0 of an evaluation (episode i: DEFAULT_SEED + i)."""
 BACKENDS = ("serial", "process", "ray")
@@ -189,31 +188,19 @@ def _scene_name(scene: str) -> str:
 
 
 def agent_overrides(agent: str, scene: str) -> dict[str, Any]:
-    """The scene fields an agent runs with (``deck_sim.load`` keywords): a learned actor's own predictor and
-    observation, ``mpc`` for the classical references, the oracle for ``scripted``, the scene's own for ``random``
-    and ``zero`` (no override)."""
-    from deck_sim.policies import LearnedPolicy, policy_file
+    """The scene fields an agent runs with (``deck_sim.load`` keywords; ``deck_sim.policies.policy_overrides``)."""
+    from deck_sim.policies import policy_overrides
 
     label, sep, path = agent.partition("=")
-    if sep:
-        return LearnedPolicy.load(path).scene_overrides
-    if agent in CLASSICAL_AGENTS:
-        return {"episode__predictor": REFERENCE_PREDICTOR}
-    if agent == "scripted":
-        return {"episode__predictor": "oracle"}
-    if agent in LEARNED_AGENTS:
-        return LearnedPolicy.load(policy_file(agent, _scene_name(scene))).scene_overrides
-    return {}
+    return policy_overrides(path if sep else agent, _scene_name(scene))
 
 
 def make_agent(agent: str, env: Any, seed: int = 0) -> Any:
     """The policy (``reset()``, ``act(observation)``) of ``agent`` acting in ``env``."""
-    from deck_sim.policies import LearnedPolicy, make_policy
+    from deck_sim.policies import make_policy
 
     label, sep, path = agent.partition("=")
-    if sep:
-        return LearnedPolicy.load(path)
-    return make_policy(agent, env, seed=seed)
+    return make_policy(path if sep else agent, env, seed=seed)
 
 
 @dataclass(frozen=True)
