@@ -75,6 +75,7 @@ def test_the_report_files_hold_the_results(serial, tmp_path):
     paths = write_report(serial, tmp_path)
     data = json.loads(paths["summary.json"].read_text())
     assert data["config"]["episodes"] == 3 and len(data["episodes"]) == 6
+    assert data["evaluated"] == [["deck1", "mddpg"], ["deck1", "apf"]]
     with open(paths["episodes.csv"]) as f:
         rows = list(csv.DictReader(f))
     assert [float(r["reward"]) for r in rows] == [r["reward"] for r in serial.episodes]

@@ -644,6 +644,7 @@ def write_report(res: EvalResults, out: str | os.PathLike[str]) -> dict[str, Pat
         "config": asdict(res.config),
         "machine": machine(),
         "wall_s": res.wall_s,
+        "evaluated": [[s["scene"], s["agent"]] for s in res.summaries],  # a merged config may list more pairs
         "summaries": res.summaries,
         "episodes": res.episodes,
     }
