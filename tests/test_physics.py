@@ -259,3 +259,34 @@ def test_controller_constants_are_read_from_the_compiled_models(envs):
     assert limits["mass"] == pytest.approx(14830.0)
     tractor = next(m for m in task.movers if type(m).__name__ == "Tractor")
     assert tractor.drive_geometry(physics) == pytest.approx((1.6, 0.4))
+
+
+def test_skipping_sensors_on_the_fused_substeps_changes_nothing(monkeypatch):
+    """Sensors are computed only where they are read (the contact sensor at every collision check, the rest at
+    the end of the control step): the trajectory, the sensors and the collision found stay bit-identical."""
+    import deck_sim.tasks.navigate as navigate
+
+    def run() -> tuple[np.ndarray, np.ndarray, list[str | None]]:
+        env = deck_sim.load("deck1", seed=3, movers__tractors=2, movers__aircraft=0)
+        env.reset()
+        task = env.task
+        parked = task.planner_view().statics.centers[:-1]
+        target = parked[np.argmin(np.linalg.norm(parked - task.last_info["position"], axis=1))]
+        qpos, sensors, hits = [], [], []
+        for _ in range(200):  # drive at the nearest parked aircraft until the collision ends the episode
+            direction = target - task.last_info["position"]
+            ts = env.step(direction / np.linalg.norm(direction))
+            qpos.append(env.physics.data.qpos.copy())
+            sensors.append(env.physics.data.sensordata.copy())
+            hits.append(task.last_info["collision"])
+            if ts.last():
+                break
+        return np.array(qpos), np.array(sensors), hits
+
+    skipped = run()
+    monkeypatch.setattr(navigate, "_NO_SENSORS", 0)  # every substep computes its sensors
+    every = run()
+    assert every[2][-1] is not None and every[2][-1].startswith("parked_aircraft")
+    assert np.array_equal(skipped[0], every[0])
+    assert np.array_equal(skipped[1], every[1])
+    assert skipped[2] == every[2]

@@ -47,6 +47,10 @@ _DIVERGENCE_WARNINGS = (
 )
 
 
+_NO_SENSORS = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+"""The disable flag that skips sensor computation on the fused substeps between contact checks."""
+
+
 class LayoutError(RuntimeError):
     """The episode's layout could not be sampled (rejection sampling ran out of attempts)."""
 
@@ -618,8 +622,19 @@ class Navigate(composer.Task):
         warnings = d.warning.number
         warn_before = sum(warnings[self._warning_ids].tolist())
         self._collided_with = None
+        # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
+        # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
+        # run mj_rnePostConstraint every step) leaves the trajectory and every value read bit-identical.
+        opt = self._m.opt
+        flags = opt.disableflags
         for c in self._chunks:
-            mujoco.mj_step(self._m, d, nstep=c)
+            if c > 1:
+                opt.disableflags = flags | _NO_SENSORS
+                try:
+                    mujoco.mj_step(self._m, d, nstep=c - 1)
+                finally:
+                    opt.disableflags = flags
+            mujoco.mj_step(self._m, d, nstep=1)
             self._check_contacts()
         self._diverged = sum(warnings[self._warning_ids].tolist()) > warn_before
 
@@ -828,9 +843,9 @@ class Navigate(composer.Task):
         st = self._state
         agent_xy = st["xy"][0]
         statics = self._static_centres - agent_xy
-        order_s = np.argsort(np.einsum("ij,ij->i", statics, statics), kind="stable")
+        order_s = np.einsum("ij,ij->i", statics, statics).argsort(kind="stable")
         movers = st["xy"][1:] - agent_xy
-        order_m = np.argsort(np.einsum("ij,ij->i", movers, movers), kind="stable")
+        order_m = np.einsum("ij,ij->i", movers, movers).argsort(kind="stable")
         obs = {
             "target": self.layout.target_xy - agent_xy,
             "static_obstacles": statics[order_s],
@@ -843,9 +858,11 @@ class Navigate(composer.Task):
             obs["dynamic_nearest"] = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
             yaw = st["yaw"][1:][order_m]
             obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
-        obs["position"] = agent_xy.copy()
-        obs["velocity"] = st["vel"][0].copy()
-        obs["heading"] = np.array([np.cos(st["yaw"][0]), np.sin(st["yaw"][0])])
+        # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
+        obs["position"] = agent_xy
+        obs["velocity"] = st["vel"][0]
+        yaw = float(st["yaw"][0])
+        obs["heading"] = np.array([math.cos(yaw), math.sin(yaw)])
         self._obs = obs
         self._mover_order = order_m
 
@@ -854,7 +871,7 @@ class Navigate(composer.Task):
         self._fallbacks_total += self._prediction.n_fallbacks
         self.last_info = {
             "time": float(physics.data.time),
-            "position": st["xy"][0].copy(),
+            "position": st["xy"][0],  # (views of this step's fresh state arrays, never written to)
             "heading": float(st["yaw"][0]),
             "speed": float(st["forward_speed"][0]),
             "distance_to_goal": float(self._dist_target),
@@ -868,8 +885,8 @@ class Navigate(composer.Task):
             "predictor_fallbacks": int(self._prediction.n_fallbacks),
             "predictor_fallbacks_total": int(self._fallbacks_total),
             "movers_rescued": int(self._rescued),
-            "mover_positions": st["xy"][1:].copy(),
-            "mover_yaw": st["yaw"][1:].copy(),
+            "mover_positions": st["xy"][1:],
+            "mover_yaw": st["yaw"][1:],
             "prediction": self._prediction.positions.copy(),
         }
 
