@@ -459,3 +459,31 @@ def test_the_shipped_policies_load_and_act_on_their_scene(scene):
         action = policy.act(ts.observation)
         assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
         ts = env.step(action)
+
+
+def test_an_agent_without_prediction_is_taught_by_the_planner_that_sees_the_forecasts():
+    """Relabelling for DDPG (predictor ``none``): the planner plans on the MPC forecasts, as it does for MDDPG, and
+    the agent's observation is the plain one (no ``predicted`` part), equal to a ``none`` environment's."""
+    from deck_sim.policies import ScriptedPolicy
+    from training.envs import make_env
+    from training.runners import InlineEnvs
+
+    seed, actions = 123, np.array([[0.6, 0.2], [0.7, -0.1], [0.5, 0.5], [0.8, 0.0]])
+    envs = InlineEnvs(1)
+    layout = envs.build(0, "deck1", "none", {}, True)
+    assert "predicted" not in layout.keys
+    plain = make_env("deck1", "none")
+    taught = make_env("deck1", "mpc")
+    teacher = ScriptedPolicy(taught.composer_env)
+    obs = envs.reset(0, seed)
+    plain_obs, _ = plain.reset(seed=seed)
+    taught.reset(seed=seed)
+    assert np.array_equal(obs, plain_obs)
+    for a in actions:
+        envs.step_async(a[None])
+        res = envs.step_wait()[0]
+        assert np.array_equal(res.expert, np.clip(teacher.act({}), -1.0, 1.0))
+        plain_obs, *_ = plain.step(a)
+        taught.step(a)
+        assert np.array_equal(res.obs, plain_obs)
+    envs.close()

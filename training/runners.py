@@ -35,6 +35,12 @@ class StepResult:
 
 _INFO_KEYS = ("reached_goal", "collision", "left_surface", "diverged")
 
+TEACHER_PREDICTOR = "mpc"
+"""The forecasts the scripted planner plans around when it labels the agent's transitions (as in the
+demonstrations). An agent without prediction (``predictor = "none"``) steps an environment that runs this
+predictor for the planner and gets the observation without its ``predicted`` part, so DDPG and MDDPG are taught
+by the same planner; only what they observe differs."""
+
 
 class _Envs:
     """The environments themselves (used directly inline, or inside the worker)."""
@@ -42,28 +48,38 @@ class _Envs:
     def __init__(self, n: int) -> None:
         self.envs: list[Any] = [None] * n
         self.experts: list[Any] = [None] * n
+        self.views: list[tuple[ObservationLayout, ObservationLayout] | None] = [None] * n
+        """Per slot: (the environment's layout, the agent's) where the agent sees less than the environment."""
 
     def build(self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool) -> dict:
         from deck_sim.policies import ScriptedPolicy
 
         if self.envs[i] is not None:
             self.envs[i].close()
-        self.envs[i] = make_env(scene, predictor, **overrides)
+        env_predictor = TEACHER_PREDICTOR if expert and predictor == "none" else predictor
+        self.envs[i] = make_env(scene, env_predictor, **overrides)
         self.experts[i] = ScriptedPolicy(self.envs[i].composer_env) if expert else None
-        return env_layout(self.envs[i]).shapes
+        full = env_layout(self.envs[i])
+        own = full.without(("predicted",)) if env_predictor != predictor else full
+        self.views[i] = (full, own) if own.keys != full.keys else None
+        return own.shapes
+
+    def _own(self, i: int, obs: np.ndarray) -> np.ndarray:
+        view = self.views[i]
+        return obs if view is None else view[0].select(obs, view[1])
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         obs, _ = self.envs[i].reset(seed=seed)
         if self.experts[i] is not None:
             self.experts[i].reset()
-        return obs
+        return self._own(i, obs)
 
     def step_one(self, i: int, action: np.ndarray) -> StepResult:
         expert = None
         if self.experts[i] is not None:  # what the planner would do here (it reads the task's full state)
             expert = np.clip(self.experts[i].act({}), -1.0, 1.0)
         obs, reward, terminated, truncated, info = self.envs[i].step(action)
-        return StepResult(obs, float(reward), bool(terminated), bool(truncated), expert,
+        return StepResult(self._own(i, obs), float(reward), bool(terminated), bool(truncated), expert,
                           {k: info[k] for k in _INFO_KEYS})
 
     def step(self, actions: np.ndarray) -> list[StepResult]:
