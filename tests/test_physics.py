@@ -261,13 +261,23 @@ def test_controller_constants_are_read_from_the_compiled_models(envs):
     assert tractor.drive_geometry(physics) == pytest.approx((1.6, 0.4))
 
 
-def test_skipping_sensors_on_the_fused_substeps_changes_nothing(monkeypatch):
-    """Sensors are computed only where they are read (the contact sensor at every collision check, the rest at
-    the end of the control step): the trajectory, the sensors and the collision found stay bit-identical."""
+@pytest.mark.parametrize("undo", ["sensors", "midphase", "islands"])
+def test_the_physics_shortcuts_change_nothing(monkeypatch, undo):
+    """What the task and scene files skip for speed leaves every trajectory bit-identical: sensors on the fused
+    substeps (computed only where read: the contact sensor at every collision check, all of them at the end of
+    the control step), the collision midphase and constraint islands. Each is undone in turn and an episode of
+    the agent driving into a parked aircraft among two movers is compared step by step."""
     import deck_sim.tasks.navigate as navigate
 
-    def run() -> tuple[np.ndarray, np.ndarray, list[str | None]]:
+    def run(undo: str | None) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
         env = deck_sim.load("deck1", seed=3, movers__tractors=2, movers__aircraft=0)
+        opt = env.physics.model.opt
+        skipped = int(mujoco.mjtDisableBit.mjDSBL_MIDPHASE) | int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+        assert opt.disableflags & skipped == skipped  # what the scene files set
+        if undo == "midphase":
+            opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_MIDPHASE)
+        elif undo == "islands":
+            opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
         env.reset()
         task = env.task
         parked = task.planner_view().statics.centers[:-1]
@@ -283,10 +293,11 @@ def test_skipping_sensors_on_the_fused_substeps_changes_nothing(monkeypatch):
                 break
         return np.array(qpos), np.array(sensors), hits
 
-    skipped = run()
-    monkeypatch.setattr(navigate, "_NO_SENSORS", 0)  # every substep computes its sensors
-    every = run()
-    assert every[2][-1] is not None and every[2][-1].startswith("parked_aircraft")
-    assert np.array_equal(skipped[0], every[0])
-    assert np.array_equal(skipped[1], every[1])
-    assert skipped[2] == every[2]
+    fast = run(None)
+    if undo == "sensors":
+        monkeypatch.setattr(navigate, "_NO_SENSORS", 0)  # every substep computes its sensors
+    plain = run(undo)
+    assert plain[2][-1] is not None and plain[2][-1].startswith("parked_aircraft")
+    assert np.array_equal(fast[0], plain[0])
+    assert np.array_equal(fast[1], plain[1])
+    assert fast[2] == plain[2]
