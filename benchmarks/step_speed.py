@@ -8,6 +8,7 @@ the machine and its load average over the last minute after each scene (other jo
 Python more than MuJoCo, so quote the load with the figures). Single-threaded (OMP/MKL threads pinned to 1).
 
     python benchmarks/step_speed.py [--scenes deck1,deck2,square] [--steps 2000] [--predictor constant_velocity]
+                                    [--repeat 1]
 """
 
 from __future__ import annotations
@@ -87,6 +88,7 @@ def main() -> None:
     parser.add_argument("--scenes", default="deck1,deck2,square")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--predictor", default="constant_velocity")
+    parser.add_argument("--repeat", type=int, default=1, help="measure each scene this many times (one row each)")
     args = parser.parse_args()
     print(f"machine: {machine(mujoco=mujoco.__version__)}")
     print(
@@ -99,7 +101,7 @@ def main() -> None:
         f"{'(mean)':>7s} {'x realtime':>10s} {'(mean)':>7s} {'reset ms':>9s} {'load':>5s}"
     )
     print(header)
-    for name in args.scenes.split(","):
+    for name in [n for n in args.scenes.split(",") for _ in range(args.repeat)]:
         r = bench_scene(name, args.steps, args.predictor)
         print(
             f"{name:8s} {r['timestep']:7.4f} {r['substeps']:4.0f} {r['step_ms']:8.3f} {r['steps_per_s']:8.0f} "

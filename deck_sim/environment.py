@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 from dm_control import composer
 from dm_control.composer import observation
@@ -60,7 +61,20 @@ class _PlainUpdater(observation.Updater):
 
 
 class DeckEnvironment(composer.Environment):
-    """composer's ``Environment`` with ``_PlainUpdater`` for its observations (identical values, less Python)."""
+    """composer's ``Environment`` with ``_PlainUpdater`` for its observations (identical values, less Python).
+
+    composer's one substep per control step calls ``mujoco.mj_step`` itself, without dm_control's warning
+    bookkeeping around it (``Physics.check_invalid_state``): the task already checks MuJoCo's divergence warnings
+    over the whole control step and ends a diverged episode cleanly, so the check was done twice.
+    """
+
+    def _substep(self, action: np.ndarray) -> None:
+        if not isinstance(self._task, Navigate):
+            super()._substep(action)
+            return
+        self._hooks.before_substep(self._physics_proxy, action, self._random_state)
+        mujoco.mj_step(self._physics.model.ptr, self._physics.data.ptr)
+        self._hooks.after_substep(self._physics_proxy, self._random_state)
 
     def _make_observation_updater(self) -> observation.Updater:
         if self._delayed_observation_padding == composer.ObservationPadding.INITIAL_VALUE:

@@ -88,3 +88,25 @@ def test_mpc_differs_from_none_and_from_constant_velocity(mpc_run) -> None:
     assert all("predicted" in obs for obs in mpc_obs)
     gap = max(np.abs(m["predicted"] - c["predicted"]).max() for m, c in zip(mpc_obs, cv_obs, strict=True))
     assert gap > 0.5, f"MPC and constant velocity agree within {gap:.3f} m on every step"
+
+
+def test_the_tasks_constant_velocity_equals_the_predictor_on_the_observed_histories() -> None:
+    """The task's shortcut for its default predictor gives ``ConstantVelocity.predict``'s numbers bit for bit."""
+    from deck_sim.control.prediction import ConstantVelocity
+
+    env = deck_sim.load("deck2", seed=4, episode__predictor="constant_velocity")
+    env.reset()
+    task = env.task
+    first = task.last_info["mover_positions"].copy()
+    seen = [first] * task.spec.episode.history  # the task pads the history with the first position
+    predictor = ConstantVelocity(horizon=task.spec.episode.horizon)
+    rng = np.random.default_rng(1)
+    for _ in range(14):
+        env.step(rng.uniform(-0.5, 0.5, 2))
+        seen = seen[1:] + [task.last_info["mover_positions"].copy()]
+        tracks = ObstacleTracks(
+            dt=task.spec.episode.control_period,
+            positions=np.stack(seen, axis=1),
+            kinds=np.zeros(len(first), dtype=int),
+        )
+        assert np.array_equal(task.last_info["prediction"], predictor.predict(tracks).positions)

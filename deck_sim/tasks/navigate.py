@@ -30,7 +30,13 @@ from dm_control.composer.observation import observable
 from dm_env import specs
 
 from deck_sim.behaviour import BehaviourParams, MoverBehaviour
-from deck_sim.control.prediction import Predictor, make_predictor
+from deck_sim.control.prediction import (
+    ConstantVelocity,
+    Predictor,
+    constant_velocity_rollout,
+    least_squares_velocity,
+    make_predictor,
+)
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
 from deck_sim.geometry import Footprints, VisibilityGraph
@@ -174,6 +180,7 @@ class Navigate(composer.Task):
             [ObstacleKind.PEDESTRIAN if isinstance(m, Pedestrian) else ObstacleKind.WHEELED for m in self._movers],
             dtype=int,
         )
+        self._no_fallback = np.zeros(len(self._kinds), dtype=bool)  # (shared by the fast path's predictions)
         self._mover_half = np.array([m.footprint[1] for m in self._movers]).reshape(-1, 2)
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
@@ -548,6 +555,7 @@ class Navigate(composer.Task):
                 ),
             ]
         )
+        self._all_half_l, self._all_radius_l = self._all_fp.half.tolist(), self._all_fp.radius.tolist()
         # route graphs, one per distinct mover clearance
         graphs: dict[float, VisibilityGraph] = {}
         mover_graphs = []
@@ -581,6 +589,7 @@ class Navigate(composer.Task):
         self._clearances = self._obstacle_clearances(self._state)
         self._collided_with: str | None = None
         self._reached = self._off_surface = self._diverged = False
+        self._warnings_before = sum(self._d.warning.number[self._warning_ids].tolist())
         self._terminal = False
         self._reward = rewards.RewardTerms(0.0, 0.0, 0.0, 0.0, 0.0)
         self._fallbacks_total = 0
@@ -616,11 +625,11 @@ class Navigate(composer.Task):
         else:
             displacement = action * spec.agent.reach
             d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
-        self._command_movers(physics.data.time, st)
+        self._command_movers(self._d.time, st)
 
         # fused substeps, split for collision checks; composer runs the final one
         warnings = d.warning.number
-        warn_before = sum(warnings[self._warning_ids].tolist())
+        self._warnings_before = sum(warnings[self._warning_ids].tolist())  # compared in ``after_step``
         self._collided_with = None
         # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
         # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
@@ -636,7 +645,6 @@ class Navigate(composer.Task):
                     opt.disableflags = flags
             mujoco.mj_step(self._m, d, nstep=1)
             self._check_contacts()
-        self._diverged = sum(warnings[self._warning_ids].tolist()) > warn_before
 
     def _command_movers(self, t: float, st: dict[str, np.ndarray]) -> None:
         if not self._movers:
@@ -686,7 +694,9 @@ class Navigate(composer.Task):
         """Read the new state, update histories, prediction, reward, termination and observation."""
         self._check_contacts()
         d = self._d
-        self._diverged = self._diverged or not np.isfinite(d.qpos).all()
+        # divergence over the whole control step, composer's substep included (MuJoCo warns and resets the state)
+        warnings = sum(d.warning.number[self._warning_ids].tolist())
+        self._diverged = warnings > self._warnings_before or not np.isfinite(d.qpos).all()
         spec = self.spec
         st = self._read_state()
         on_surface = self._arena.on_surface(st["xy"])  # the agent, then every mover
@@ -795,15 +805,43 @@ class Navigate(composer.Task):
         return Footprints(st["xy"][1:], self._mover_half, yaw, self._mover_radius_fp)
 
     def _obstacle_clearances(self, st: dict[str, np.ndarray]) -> np.ndarray:
-        """Clearance (k,) from the agent's disc to every static obstacle and mover, metres."""
+        """Clearance (k,) from the agent's disc to every static obstacle and mover, metres.
+
+        ``Footprints.distance`` from one point, written out on plain floats (about 25 footprints: numpy's cost
+        per call outweighs its work); the cosines and sines still come from numpy. Equal to
+        ``self._all_fp.distance(agent)[0] - radius`` to a few ulps (``math.hypot`` rounds differently).
+        """
         fp, k = self._all_fp, len(self._static_fp)
         fp.centers[k:] = st["xy"][1:]  # movers' rows are updated in place (hot path)
         fp.yaw[k:] = st["yaw"][1:]
-        return fp.distance(st["xy"][0])[0] - self.spec.agent.radius
+        px, py = st["xy"][0].tolist()
+        agent_r, hypot = self.spec.agent.radius, math.hypot
+        out = []
+        for (cx, cy), (hx, hy), r, c, s in zip(
+            fp.centers.tolist(),
+            self._all_half_l,
+            self._all_radius_l,
+            np.cos(fp.yaw).tolist(),
+            np.sin(fp.yaw).tolist(),
+            strict=True,
+        ):
+            rx, ry = px - cx, py - cy
+            qx = abs(rx * c + ry * s) - hx
+            qy = abs(-rx * s + ry * c) - hy
+            outside = hypot(qx if qx > 0.0 else 0.0, qy if qy > 0.0 else 0.0)
+            inside = qx if qx > qy else qy
+            out.append(outside + (inside if inside < 0.0 else 0.0) - r - agent_r)
+        return np.array(out)
 
     def _predict(self, physics: mjcf.Physics) -> Prediction:
         if not self._movers:
             return Prediction(np.zeros((0, self._horizon, 2)), np.zeros(0, dtype=bool))
+        if type(self._predictor) is ConstantVelocity:
+            # the benchmarks' and the scripted planner's predictor, on the hot path: the task's own history is
+            # well formed (MuJoCo resets a diverged state), so ``predict``'s input checks are skipped; same numbers
+            p, dt, hist = self._predictor, self.spec.episode.control_period, self._history
+            velocity = least_squares_velocity(hist, dt, p.window)
+            return Prediction(constant_velocity_rollout(hist[:, -1, :], velocity, dt, p.horizon), self._no_fallback)
         future = self.simulate_future(physics, self._horizon) if self._predictor.needs_future else None
         tracks = ObstacleTracks(
             dt=self.spec.episode.control_period, positions=self._history, kinds=self._kinds, future=future
@@ -870,7 +908,7 @@ class Navigate(composer.Task):
         st = self._state
         self._fallbacks_total += self._prediction.n_fallbacks
         self.last_info = {
-            "time": float(physics.data.time),
+            "time": float(self._d.time),
             "position": st["xy"][0],  # (views of this step's fresh state arrays, never written to)
             "heading": float(st["yaw"][0]),
             "speed": float(st["forward_speed"][0]),

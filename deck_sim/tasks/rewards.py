@@ -11,6 +11,7 @@ A dead band on |d| (``progress_deadband``) keeps numerical jitter of a standing 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 
 def shaped(change: float, lo: float, hi: float, deadband: float) -> float:
     """The paper's clipped shaping: sign of ``change``, magnitude clipped to [lo, hi]; 0 inside the dead band."""
-    if not np.isfinite(change):
+    if not math.isfinite(change):  # (math, not numpy: this runs twice a control step on one float)
         raise ValueError(f"reward shaping got a non-finite change {change!r}")
     if abs(change) < deadband:
         return 0.0
