@@ -487,3 +487,19 @@ def test_an_agent_without_prediction_is_taught_by_the_planner_that_sees_the_fore
         taught.step(a)
         assert np.array_equal(res.obs, plain_obs)
     envs.close()
+
+
+def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():
+    from training.config import arm_config, bc_weight_at
+
+    cfg = arm_config("tuned-mddpg-with-decay", "deck1", steps=10_000, seed=0)
+    assert (cfg.bc_weight, cfg.bc_weight_final, cfg.bc_decay) == (20.0, 2.0, 1.0)
+    assert [bc_weight_at(cfg, s) for s in (0, 5_000, 10_000, 20_000)] == [20.0, 11.0, 2.0, 2.0]
+    assert bc_weight_at(make_config(), 5_000) == 20.0  # no final weight: constant
+    half = make_config(bc_weight=10.0, bc_weight_final=0.0, bc_decay=0.5, total_steps=1_000)
+    assert bc_weight_at(half, 250) == 5.0 and bc_weight_at(half, 600) == 0.0
+    with pytest.raises(ConfigError, match="bc_weight_final"):
+        make_config(bc_weight_final=-1.0)
+    with pytest.raises(ConfigError, match="bc_decay"):
+        make_config(bc_decay=1.5)
+    assert TrainConfig.from_dict(cfg.to_dict()) == cfg  # saved with the run

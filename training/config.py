@@ -36,6 +36,15 @@ def train_episode_seed(seed: int, env_index: int, episode: int) -> int:
     return TRAIN_SEED_BASE + seed * 1_000_000 + env_index * 100_000 + episode
 
 
+def bc_weight_at(config: TrainConfig, step: int) -> float:
+    """The cloning weight after ``step`` environment steps: ``bc_weight`` falling linearly to ``bc_weight_final``
+    over the first ``bc_decay`` of ``total_steps`` (constant if ``bc_weight_final`` is None)."""
+    if config.bc_weight_final is None:
+        return float(config.bc_weight)
+    frac = min(1.0, step / max(1.0, config.bc_decay * config.total_steps))
+    return float(config.bc_weight + frac * (config.bc_weight_final - config.bc_weight))
+
+
 def demo_episode_seed(seed: int, episode: int) -> int:
     """The reset seed of demonstration episode ``episode`` in a run seeded ``seed`` (disjoint from training)."""
     if not 0 <= episode < 100_000:
@@ -137,6 +146,11 @@ class TrainConfig:
     """Share of every batch drawn from the demonstrations (when there are any)."""
     bc_weight: float = 0.0
     """Weight of the behaviour-cloning term on demonstration samples in the actor loss (0: off)."""
+    bc_weight_final: float | None = None
+    """Cloning weight reached at the end of ``bc_decay`` (linear in environment steps, as the noise; ``None``: the
+    weight stays ``bc_weight``). A falling weight hands the actor over from the planner to the critic."""
+    bc_decay: float = 1.0
+    """Fraction of ``total_steps`` over which the cloning weight falls to ``bc_weight_final``."""
     q_filter: bool = True
     """Clone a demonstrated action only where the critic rates it above the actor's own (Nair et al. 2018)."""
     bc_normalise_q: bool = True
@@ -183,7 +197,9 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
-        for name in ("gamma", "tau", "demo_fraction", "noise_decay"):
+        if self.bc_weight_final is not None and not 0.0 <= self.bc_weight_final:
+            raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
+        for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
@@ -284,9 +300,11 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 """What each ``-no-<switch>`` arm of ``arm_config`` turns off in the tuned recipe."""
 ADDITIONS: dict[str, dict[str, Any]] = {
     "shape": {"scene_overrides": {"episode__obstacle_shape": True}},
+    "decay": {"bc_weight_final": 2.0},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
-and the movers' headings in the observation, scene field ``episode.obstacle_shape``)."""
+and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
+falls linearly from the recipe's 20 to 2 over the run, handing the actor from the planner to the critic)."""
 
 
 def arm_config(

@@ -61,6 +61,8 @@ class DDPGAgent:
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.generator = generator if generator is not None else torch.Generator().manual_seed(0)
         self.updates = 0
+        self.bc_weight = float(config.bc_weight)
+        """The cloning weight of the next actor updates (the trainer follows ``bc_weight_final``'s schedule)."""
 
     # -- acting ---------------------------------------------------------------------------------------------
     @torch.no_grad()
@@ -126,7 +128,7 @@ class DDPGAgent:
         bc_loss = torch.zeros(())
         share = 0.0
         n_labelled = float(batch.labelled.sum())
-        cloning = (cfg.bc_weight > 0.0 or clone_only) and n_labelled > 0
+        cloning = (cfg.bc_weight > 0.0 or clone_only) and n_labelled > 0  # (on or off by the starting weight)
         if cloning and cfg.bc_normalise_q:
             actor_loss = actor_loss / q_pi.abs().mean().detach().clamp_min(1e-6)
         if cloning:
@@ -138,7 +140,7 @@ class DDPGAgent:
             err = ((action - batch.expert_action) ** 2).sum(-1)
             bc_loss = (err * mask).sum() / n_labelled
             share = float(mask.sum()) / n_labelled
-        loss = bc_loss if clone_only else actor_loss + cfg.bc_weight * bc_loss
+        loss = bc_loss if clone_only else actor_loss + self.bc_weight * bc_loss
         self.actor_opt.zero_grad(set_to_none=True)
         loss.backward()
         if cfg.grad_clip > 0:

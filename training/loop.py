@@ -38,7 +38,7 @@ from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import ACTOR_FORMAT, LearnedPolicy
 from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
-from training.config import ConfigError, CurriculumStage, TrainConfig, train_episode_seed
+from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
 from training.ddpg import DDPGAgent
 from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
 from training.noise import make_noise
@@ -411,6 +411,7 @@ class Trainer:
         self.step += cfg.num_envs
         frac = min(1.0, self.step / max(1.0, cfg.noise_decay * cfg.total_steps))
         self.noise.sigma = cfg.noise_sigma + frac * (cfg.noise_sigma_final - cfg.noise_sigma)
+        self.agent.bc_weight = bc_weight_at(cfg, self.step)
 
     def _learn(self, step: int) -> None:
         """The updates owed once the run reaches ``step`` environment steps (``updates_per_step`` each)."""
@@ -540,6 +541,7 @@ class Trainer:
         except (ValueError, KeyError) as err:
             raise CheckpointError(f"{self.run_dir / 'checkpoint.pt'}: {err}") from err
         self.step = int(state["step"])
+        self.agent.bc_weight = bc_weight_at(self.config, self.step)
         self.wall = float(state["wall"])
         self.update_debt = float(state["update_debt"])
         self.episodes_done = int(state["episodes_done"])
