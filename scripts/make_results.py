@@ -68,10 +68,11 @@ def training_figures(scene: str, agent: str) -> dict | None:
 
 def fingerprint(cfg: EvalConfig) -> str:
     """A digest of everything a scene's evaluation depends on: the settings, the Python sources of ``deck_sim``
-    and ``training``, the scene files and the policy files of its learned agents."""
+    and ``training``, the scene files, the MJCF models and the policy files of its learned agents."""
     digest = hashlib.sha256(json.dumps(asdict(cfg), sort_keys=True).encode())
     files = sorted((ROOT / "deck_sim").rglob("*.py")) + sorted((ROOT / "training").rglob("*.py"))
     files += sorted((ROOT / "deck_sim" / "scenes").glob("*.toml"))
+    files += sorted((ROOT / "deck_sim" / "assets").glob("*.xml"))
     files += [TRAINED_DIR / f"{s}_{a}.npz" for s in cfg.scenes for a in cfg.agents if a in LEARNED_AGENTS]
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode())
