@@ -30,11 +30,37 @@ def test_process_pool_gives_the_serial_results_and_each_unit_its_log(serial, tmp
     assert logged.reward == serial.episodes[2]["reward"]  # the logged episode is the one measured
 
 
-def test_ray_gives_the_serial_results(serial):
+def test_ray_gives_the_serial_results_and_each_unit_its_log(serial, tmp_path):
     pytest.importorskip("ray")
-    remote = evaluate(EvalConfig(backend="ray", **SMALL))
+    from deck_sim.recording import EpisodeLog
+
+    remote = evaluate(EvalConfig(backend="ray", **{**SMALL, "record": "all", "out": str(tmp_path)}))
     assert same_results(remote.episodes, serial.episodes)
     assert same_results(remote.summaries, serial.summaries)
+    names = sorted(p.name for p in (tmp_path / "logs").glob("*.mcap"))  # each Ray worker wrote its units' logs
+    assert names == ["deck1-apf-0000.mcap", "deck1-apf-0002.mcap", "deck1-mddpg-0000.mcap", "deck1-mddpg-0002.mcap"]
+    logged = EpisodeLog(tmp_path / "logs" / "deck1-apf-0002.mcap").episodes[0].rescore().result
+    assert logged.reward == next(e for e in serial.episodes if e["agent"] == "apf" and e["episode"] == 2)["reward"]
+
+
+def test_a_failing_unit_stops_the_pool_with_its_error():
+    """An actor made for another scene fails inside its units: the run stops with that error, and the units still
+    waiting are dropped (at most the four good ones finish)."""
+    from deck_sim.policies import PolicyFileError
+
+    finished = []
+    cfg = EvalConfig(
+        agents=("apf", "wrong=deck_sim/trained/deck2_mddpg.npz"),
+        scenes=("deck1",),
+        episodes=4,
+        chunk=1,
+        workers=2,
+        record="none",
+        backend="process",
+    )
+    with pytest.raises(PolicyFileError, match=r"trained on \(9, 2\)"):
+        evaluate(cfg, progress=lambda done, total, records: finished.append(records[0]["agent"]))
+    assert len(finished) <= 4 and set(finished) <= {"apf"}
 
 
 def test_results_compare_nan_as_equal():
