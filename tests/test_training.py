@@ -109,6 +109,13 @@ def test_cloning_term_and_q_normalisation_by_hand():
     assert stats["bc_share"] == 1.0
     with_filter = _tiny_agent(bc_weight=2.0, q_filter=True)
     assert with_filter.update(batch)["bc_share"] == 0.0  # the critic rates tanh(0.5) above -0.5: not cloned
+    # both labelled; the planner's -0.5 is slow (|a| < 0.9) and weighs 3 times, its 1.0 on s1 once
+    both = batch._replace(expert_action=t([[-0.5], [1.0]]), labelled=t([1.0, 1.0]))
+    slow = _tiny_agent(bc_weight=2.0, q_filter=False, bc_slow_weight=3.0)
+    want = (3.0 * (np.tanh(0.5) + 0.5) ** 2 + 1.0 * (0.0 - 1.0) ** 2) / 4.0
+    np.testing.assert_allclose(slow.update(both)["bc_loss"], want, rtol=1e-6)
+    plain = _tiny_agent(bc_weight=2.0, q_filter=False)
+    np.testing.assert_allclose(plain.update(both)["bc_loss"], ((np.tanh(0.5) + 0.5) ** 2 + 1.0) / 2.0, rtol=1e-6)
 
 
 def test_soft_update_is_exact():

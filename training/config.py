@@ -151,6 +151,11 @@ class TrainConfig:
     weight stays ``bc_weight``). A falling weight hands the actor over from the planner to the critic."""
     bc_decay: float = 1.0
     """Fraction of ``total_steps`` over which the cloning weight falls to ``bc_weight_final``."""
+    bc_slow_weight: float = 1.0
+    """Relative weight, in the cloning loss, of the samples where the planner asked for less than ``bc_slow_below``
+    of the full step (it yields, brakes or creeps into the goal): rare states where its choice matters most."""
+    bc_slow_below: float = 0.9
+    """Action norm below which a planner's action counts as slow for ``bc_slow_weight``."""
     q_filter: bool = True
     """Clone a demonstrated action only where the critic rates it above the actor's own (Nair et al. 2018)."""
     bc_normalise_q: bool = True
@@ -197,6 +202,8 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
+        if not self.bc_slow_weight > 0.0:
+            raise ConfigError(f"bc_slow_weight: must be positive, got {self.bc_slow_weight!r}")
         if self.bc_weight_final is not None and not 0.0 <= self.bc_weight_final:
             raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
         for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay"):
@@ -301,10 +308,12 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 ADDITIONS: dict[str, dict[str, Any]] = {
     "shape": {"scene_overrides": {"episode__obstacle_shape": True}},
     "decay": {"bc_weight_final": 2.0},
+    "slow": {"bc_slow_weight": 5.0},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
-falls linearly from the recipe's 20 to 2 over the run, handing the actor from the planner to the critic)."""
+falls linearly from the recipe's 20 to 2 over the run, handing the actor from the planner to the critic;
+``slow``: the planner's slow actions (yielding, braking) weigh 5 times in the cloning loss)."""
 
 
 def arm_config(

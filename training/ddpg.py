@@ -138,7 +138,12 @@ class DDPGAgent:
                     q_expert = self.critic(obs, batch.expert_action)[0]
                     mask = mask * (q_expert > q_pi.detach()).float()
             err = ((action - batch.expert_action) ** 2).sum(-1)
-            bc_loss = (err * mask).sum() / n_labelled
+            if cfg.bc_slow_weight != 1.0:  # a weighted mean: the slow actions weigh bc_slow_weight times
+                slow = (batch.expert_action.norm(dim=-1) < cfg.bc_slow_below).float()
+                weight = 1.0 + (cfg.bc_slow_weight - 1.0) * slow
+                bc_loss = (err * mask * weight).sum() / (batch.labelled * weight).sum()
+            else:
+                bc_loss = (err * mask).sum() / n_labelled
             share = float(mask.sum()) / n_labelled
         loss = bc_loss if clone_only else actor_loss + self.bc_weight * bc_loss
         self.actor_opt.zero_grad(set_to_none=True)
