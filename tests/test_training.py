@@ -240,16 +240,30 @@ def test_two_seeded_runs_give_identical_losses_and_actions(tmp_path):
     _assert_same_run(a, b)
 
 
-def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path):
-    whole = Trainer(_short(), tmp_path / "whole", progress=False)
+@pytest.mark.parametrize("fields", [{}, {"bc_weight_final": 2.0, "bc_slow_weight": 3.0}], ids=["tuned", "schedule"])
+def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path, fields):
+    """...also with a falling cloning weight, which the resumed run must take up at the step it stopped at."""
+    whole = Trainer(_short(**fields), tmp_path / "whole", progress=False)
     whole.train()
-    first = Trainer(_short(), tmp_path / "broken", progress=False)
+    first = Trainer(_short(**fields), tmp_path / "broken", progress=False)
     out = first.train(stop_at=70)  # mid-episode in both environments
     assert out["step"] == 70 and not (tmp_path / "broken" / "actor.npz").exists()
     assert any(len(s.actions) > 0 for s in first.slots)
-    resumed = Trainer(_short(), tmp_path / "broken", resume=True, progress=False)
+    resumed = Trainer(_short(**fields), tmp_path / "broken", resume=True, progress=False)
     resumed.train()
     _assert_same_run(whole, resumed)
+
+
+def test_a_checkpoint_from_before_a_new_field_resumes_with_its_default(tmp_path):
+    run = tmp_path / "run"
+    cfg = _short(total_steps=60, demo_episodes=0, pretrain_updates=0)
+    Trainer(cfg, run, progress=False).train(stop_at=40)
+    state = torch.load(run / "checkpoint.pt", weights_only=False)
+    for key in ("bc_slow_weight", "bc_slow_below", "bc_weight_final", "bc_decay"):  # added after older runs
+        del state["config"][key]
+    torch.save(state, run / "checkpoint.pt")
+    out = Trainer(cfg, run, resume=True, progress=False).train()
+    assert out["step"] == 60
 
 
 def test_bad_checkpoints_give_clear_errors(tmp_path):
@@ -509,4 +523,6 @@ def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():
         make_config(bc_weight_final=-1.0)
     with pytest.raises(ConfigError, match="bc_decay"):
         make_config(bc_decay=1.5)
+    with pytest.raises(ConfigError, match="bc_weight_final: the cloning term is off"):
+        make_config(bc_weight=0.0, bc_weight_final=2.0)
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg  # saved with the run

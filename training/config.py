@@ -148,7 +148,8 @@ class TrainConfig:
     """Weight of the behaviour-cloning term on demonstration samples in the actor loss (0: off)."""
     bc_weight_final: float | None = None
     """Cloning weight reached at the end of ``bc_decay`` (linear in environment steps, as the noise; ``None``: the
-    weight stays ``bc_weight``). A falling weight hands the actor over from the planner to the critic."""
+    weight stays ``bc_weight``). A falling weight hands the actor over from the planner to the critic. The schedule
+    follows ``total_steps``: a run resumed with more steps recomputes the weight on the longer schedule."""
     bc_decay: float = 1.0
     """Fraction of ``total_steps`` over which the cloning weight falls to ``bc_weight_final``."""
     bc_slow_weight: float = 1.0
@@ -206,6 +207,8 @@ class TrainConfig:
             raise ConfigError(f"bc_slow_weight: must be positive, got {self.bc_slow_weight!r}")
         if self.bc_weight_final is not None and not 0.0 <= self.bc_weight_final:
             raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
+        if self.bc_weight_final is not None and self.bc_weight <= 0.0:
+            raise ConfigError("bc_weight_final: the cloning term is off (bc_weight 0); a schedule needs bc_weight > 0")
         for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:

@@ -212,6 +212,10 @@ class Trainer:
     # -- configuration checks ----------------------------------------------------------------------------------
     def _check_compatible(self, saved: dict[str, Any]) -> None:
         mine = self.config.to_dict()
+        try:  # fields added since the checkpoint was written take their defaults, as a resumed config does
+            saved = TrainConfig.from_dict(saved).to_dict()
+        except (ConfigError, TypeError, ValueError):
+            pass  # compared as saved: the difference is named below
         diff = [k for k in sorted(set(mine) | set(saved)) if k not in ("total_steps",) and mine.get(k) != saved.get(k)]
         if diff:
             detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, now {mine.get(k)!r}" for k in diff[:5])

@@ -809,7 +809,8 @@ class Navigate(composer.Task):
 
         ``Footprints.distance`` from one point, written out on plain floats (about 25 footprints: numpy's cost
         per call outweighs its work); the cosines and sines still come from numpy. Equal to
-        ``self._all_fp.distance(agent)[0] - radius`` to a few ulps (``math.hypot`` rounds differently).
+        ``self._all_fp.distance(agent)[0] - radius`` to a few ulps (``math.hypot`` rounds differently), NaN where
+        it is NaN (the builtin ``max``/``min`` keep a NaN first argument, as numpy's do).
         """
         fp, k = self._all_fp, len(self._static_fp)
         fp.centers[k:] = st["xy"][1:]  # movers' rows are updated in place (hot path)
@@ -828,9 +829,8 @@ class Navigate(composer.Task):
             rx, ry = px - cx, py - cy
             qx = abs(rx * c + ry * s) - hx
             qy = abs(-rx * s + ry * c) - hy
-            outside = hypot(qx if qx > 0.0 else 0.0, qy if qy > 0.0 else 0.0)
-            inside = qx if qx > qy else qy
-            out.append(outside + (inside if inside < 0.0 else 0.0) - r - agent_r)
+            outside = hypot(max(qx, 0.0), max(qy, 0.0))
+            out.append(outside + min(max(qx, qy), 0.0) - r - agent_r)
         return np.array(out)
 
     def _predict(self, physics: mjcf.Physics) -> Prediction:
@@ -840,6 +840,8 @@ class Navigate(composer.Task):
             # the benchmarks' and the scripted planner's predictor, on the hot path: the task's own history is
             # well formed (MuJoCo resets a diverged state), so ``predict``'s input checks are skipped; same numbers
             p, dt, hist = self._predictor, self.spec.episode.control_period, self._history
+            if not math.isfinite(hist.sum()):  # never expected: let ``predict`` name the problem
+                return p.predict(ObstacleTracks(dt=dt, positions=hist, kinds=self._kinds))
             velocity = least_squares_velocity(hist, dt, p.window)
             return Prediction(constant_velocity_rollout(hist[:, -1, :], velocity, dt, p.horizon), self._no_fallback)
         future = self.simulate_future(physics, self._horizon) if self._predictor.needs_future else None
@@ -909,7 +911,7 @@ class Navigate(composer.Task):
         self._fallbacks_total += self._prediction.n_fallbacks
         self.last_info = {
             "time": float(self._d.time),
-            "position": st["xy"][0],  # (views of this step's fresh state arrays, never written to)
+            "position": st["xy"][0].copy(),  # (copies: a caller may write to what it is given)
             "heading": float(st["yaw"][0]),
             "speed": float(st["forward_speed"][0]),
             "distance_to_goal": float(self._dist_target),
@@ -923,8 +925,8 @@ class Navigate(composer.Task):
             "predictor_fallbacks": int(self._prediction.n_fallbacks),
             "predictor_fallbacks_total": int(self._fallbacks_total),
             "movers_rescued": int(self._rescued),
-            "mover_positions": st["xy"][1:],
-            "mover_yaw": st["yaw"][1:],
+            "mover_positions": st["xy"][1:].copy(),
+            "mover_yaw": st["yaw"][1:].copy(),
             "prediction": self._prediction.positions.copy(),
         }
 
