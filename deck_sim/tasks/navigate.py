@@ -837,8 +837,8 @@ class Navigate(composer.Task):
         if not self._movers:
             return Prediction(np.zeros((0, self._horizon, 2)), np.zeros(0, dtype=bool))
         if type(self._predictor) is ConstantVelocity:
-            # the benchmarks' and the scripted planner's predictor, on the hot path: the task's own history is
-            # well formed (MuJoCo resets a diverged state), so ``predict``'s input checks are skipped; same numbers
+            # the scenes' default predictor, on the hot path: the task's own history is well formed (MuJoCo resets
+            # a diverged state), so ``predict``'s input checks are skipped; the same numbers
             p, dt, hist = self._predictor, self.spec.episode.control_period, self._history
             if not math.isfinite(hist.sum()):  # never expected: let ``predict`` name the problem
                 return p.predict(ObstacleTracks(dt=dt, positions=hist, kinds=self._kinds))
