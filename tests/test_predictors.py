@@ -53,6 +53,13 @@ def test_malformed_histories_are_refused(positions, message):
         ConstantVelocity().predict(tracks)
 
 
+@pytest.mark.parametrize("dt", [0.0, -0.5, float("nan"), None, "0.5"])
+def test_a_bad_sampling_period_is_refused(dt):
+    tracks = ObstacleTracks(dt=dt, positions=np.zeros((2, 5, 2)), kinds=np.zeros(2, dtype=int))
+    with pytest.raises(PredictionInputError, match="dt must be a positive number of seconds"):
+        ConstantVelocity().predict(tracks)
+
+
 def test_unknown_predictor_is_named():
     with pytest.raises(ValueError, match="unknown predictor 'psychic'"):
         make_predictor("psychic", 10, 0.5)

@@ -117,6 +117,13 @@ def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]
     return out
 
 
+TEACHER_PREDICTOR = "mpc"
+"""The forecasts the scripted planner plans around whenever it teaches: its demonstrations and its labels of the
+agent's own transitions (``training.runners``). An agent without prediction (``predictor = "none"``) gets the
+same planner's actions and the observation without its ``predicted`` part, so DDPG and MDDPG are taught alike and
+differ only in what they observe."""
+
+
 def make_env(scene: str, predictor: str, **overrides: Any) -> DeckSimEnv:
     """The Gymnasium adapter of ``scene`` with ``predictor`` filling the observation's predicted part."""
     return DeckSimEnv(scene, episode__predictor=predictor, **overrides)
@@ -152,14 +159,14 @@ def collect_demonstrations(
 ) -> Demonstrations:
     """Play ``episodes`` episodes of the full-knowledge scripted planner and keep their transitions.
 
-    The planner plans around the MPC predictor's forecasts (``predictor = "mpc"``), the same forecasts MDDPG
+    The planner plans around the MPC predictor's forecasts (``TEACHER_PREDICTOR``), the same forecasts MDDPG
     observes; for an agent without prediction (``layout`` lacks ``predicted``) that part of the observation is
     dropped, so DDPG and MDDPG learn from the same demonstrated episodes. Episode ``k`` is reset with
     ``demo_episode_seed(seed, k)`` (disjoint from training and evaluation seeds); ``overrides`` are scene fields.
     With ``noise`` > 0 the executed action is the planner's plus N(0, noise^2) per component (DART), drawn from a
     generator seeded by ``seed``; the planner's own action is kept as the cloning target.
     """
-    env = make_env(scene, "mpc", **overrides)
+    env = make_env(scene, TEACHER_PREDICTOR, **overrides)
     full = env_layout(env)
     policy = ScriptedPolicy(env.composer_env)
     rows: dict[str, list[np.ndarray]] = {

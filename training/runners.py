@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from training.envs import ObservationLayout, env_layout, make_env
+from training.envs import TEACHER_PREDICTOR, ObservationLayout, env_layout, make_env
 
 
 @dataclass
@@ -35,12 +35,6 @@ class StepResult:
 
 _INFO_KEYS = ("reached_goal", "collision", "left_surface", "diverged")
 
-TEACHER_PREDICTOR = "mpc"
-"""The forecasts the scripted planner plans around when it labels the agent's transitions (as in the
-demonstrations). An agent without prediction (``predictor = "none"``) steps an environment that runs this
-predictor for the planner and gets the observation without its ``predicted`` part, so DDPG and MDDPG are taught
-by the same planner; only what they observe differs."""
-
 
 class _Envs:
     """The environments themselves (used directly inline, or inside the worker)."""
@@ -56,6 +50,7 @@ class _Envs:
 
         if self.envs[i] is not None:
             self.envs[i].close()
+        # an agent without prediction is taught by the planner on the teacher's forecasts, and sees them dropped
         env_predictor = TEACHER_PREDICTOR if expert and predictor == "none" else predictor
         self.envs[i] = make_env(scene, env_predictor, **overrides)
         self.experts[i] = ScriptedPolicy(self.envs[i].composer_env) if expert else None

@@ -46,7 +46,7 @@ class Predictor(Protocol):
 
 def validate_tracks(tracks: ObstacleTracks, min_history: int) -> None:
     """Raise ``PredictionInputError`` naming the problem if ``tracks`` cannot be predicted from."""
-    pos = tracks.positions if type(tracks.positions) is np.ndarray else np.asarray(tracks.positions)
+    pos = np.asarray(tracks.positions)
     if pos.ndim != 3 or pos.shape[2] != 2:
         raise PredictionInputError(f"positions must have shape (n, H, 2), got {pos.shape}")
     if pos.shape[1] < min_history:
@@ -59,12 +59,11 @@ def validate_tracks(tracks: ObstacleTracks, min_history: int) -> None:
         raise PredictionInputError(f"positions hold NaN or infinite values for obstacle(s) {bad}")
     try:
         dt_ok = math.isfinite(tracks.dt) and tracks.dt > 0
-    except TypeError:
+    except TypeError:  # not a number at all (None, a string)
         dt_ok = False
     if not dt_ok:
         raise PredictionInputError(f"dt must be a positive number of seconds, got {tracks.dt!r}")
-    kinds = tracks.kinds
-    if (kinds.shape if type(kinds) is np.ndarray else np.shape(kinds)) != (pos.shape[0],):
+    if np.shape(tracks.kinds) != (pos.shape[0],):
         raise PredictionInputError(f"kinds must have shape ({pos.shape[0]},), got {np.shape(tracks.kinds)}")
 
 
