@@ -184,10 +184,13 @@ class LearnedPolicy:
     @property
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
-        the predictor, and ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes."""
+        the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes and
+        ``episode__mover_size`` for one trained on the movers' sizes."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True
+        if "dynamic_size" in self.keys:
+            out["episode__mover_size"] = True
         return out
 
     def reset(self) -> None:

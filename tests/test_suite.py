@@ -148,3 +148,22 @@ def test_obstacle_shape_observation_gives_nearest_points_and_headings():
     assert np.all(
         np.linalg.norm(obs["dynamic_nearest"], axis=1) <= np.linalg.norm(obs["dynamic_obstacles"], axis=1) + 1e-9
     )
+
+
+def test_mover_size_observation_follows_the_movers_order():
+    import deck_sim
+
+    assert "dynamic_size" not in deck_sim.load("deck1", seed=4).observation_spec()  # off by default
+    env = deck_sim.load("deck1", seed=4, episode__mover_size=True)
+    ts = env.reset()
+    for _ in range(3):
+        ts = env.step(np.array([0.5, 0.2]))
+    obs, view = ts.observation, env.task.planner_view()
+    assert obs["dynamic_size"].shape == obs["dynamic_obstacles"].shape
+    # row k is the size of the mover whose centre is row k (nearest first)
+    for rel, size in zip(obs["dynamic_obstacles"], obs["dynamic_size"], strict=True):
+        k = int(np.argmin(np.linalg.norm(view.movers.centers - (view.agent_xy + rel), axis=1)))
+        np.testing.assert_allclose(size, view.movers.half[k] + view.movers.radius[k])
+    # one taxiing aircraft (17-18 m long) among tractors (about 4 m)
+    lengths = sorted((2 * obs["dynamic_size"][:, 0]).tolist())
+    assert lengths[-1] > 17.0 and lengths[0] < 5.0

@@ -526,3 +526,60 @@ def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():
     with pytest.raises(ConfigError, match="bc_weight_final: the cloning term is off"):
         make_config(bc_weight=0.0, bc_weight_final=2.0)
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg  # saved with the run
+
+
+def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
+    from training.config import arm_config
+
+    cfg = arm_config("tuned-mddpg-with-data+size+shape", "deck1", steps=10_000, seed=0)
+    assert (cfg.num_envs, cfg.updates_per_step) == (8, 0.125)
+    assert cfg.scene_overrides == {"episode__mover_size": True, "episode__obstacle_shape": True}
+    assert arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).num_envs == 8
+    for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
+        with pytest.raises(ConfigError, match="unknown switch"):
+            arm_config(bad, "deck1", steps=10_000, seed=0)
+
+
+def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_path):
+    """The final cloning fit lowers the cloning loss over the buffer, adds a marked evaluation at the last step,
+    and gives the same actor whether it was asked for from the start or added by resuming the finished run."""
+    polished = Trainer(_short(polish_epochs=30), tmp_path / "polished", progress=False)
+    polished.train()
+    plain = Trainer(_short(), tmp_path / "plain", progress=False)
+    plain.train()
+    rows = np.flatnonzero(plain.buffer.labelled[: plain.buffer.size] > 0)
+    assert len(rows) == plain.buffer.size  # demonstrations and relabelled transitions all carry the planner's label
+
+    def cloning_loss(trainer: Trainer) -> float:
+        with torch.no_grad():
+            obs = trainer.agent.norm(torch.as_tensor(trainer.buffer.obs[rows]))
+            err = trainer.agent.actor(obs) - torch.as_tensor(trainer.buffer.expert_action[rows])
+        return float((err**2).sum(-1).mean())
+
+    assert cloning_loss(polished) < 0.5 * cloning_loss(plain)
+    evals = _rows(tmp_path / "polished" / "eval.csv")
+    assert [(r["step"], r["polished"]) for r in evals] == [("120", "0"), ("120", "1")]
+    meta = json.loads(str(np.load(tmp_path / "polished" / "actor.npz", allow_pickle=False)["meta"]))
+    assert meta["polished"] is True
+    later = Trainer(_short(polish_epochs=30), tmp_path / "plain", resume=True, progress=False)
+    later.train()
+    assert [r["polished"] for r in _rows(tmp_path / "plain" / "eval.csv")] == ["0", "1"]  # no second online row
+    for k, v in _actor_arrays(tmp_path / "polished").items():
+        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "plain")[k], err_msg=k)
+    again = Trainer(_short(polish_epochs=30), tmp_path / "plain", resume=True, progress=False)
+    again.train()  # polished once: resuming again changes nothing
+    assert len(_rows(tmp_path / "plain" / "eval.csv")) == 2
+    with pytest.raises(ConfigError, match="polish_epochs"):
+        make_config(polish_epochs=-1)
+
+
+def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
+    from training.cli import main
+
+    out = tmp_path / "run"
+    Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0), out, progress=False).train()
+    base = ["train", "--algo", "mddpg", "--out", str(out), "--resume", "--quiet"]
+    assert main([*base, "--set", "gamma=0.5"]) == 2
+    assert "may change only total_steps, polish_epochs, polish_lr, not gamma" in capsys.readouterr().err
+    assert main([*base, "--set", "polish_epochs=2"]) == 0
+    assert load_checkpoint(out / "checkpoint.pt")["polished"] is True

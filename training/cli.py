@@ -187,13 +187,23 @@ def _cmd_train(args: argparse.Namespace) -> int:
             summary = train_baseline(args.algo, args.scene, args.steps, args.seed, out, resume=args.resume,
                                      progress=not args.quiet, **_parse_set(args.set))
         else:
-            from training.config import make_config
+            from training.config import TrainConfig, make_config
             from training.loop import Trainer, config_from_checkpoint
 
             if args.resume:
+                from training.loop import RESUMABLE_CHANGES
+
                 config = config_from_checkpoint(out)
                 if args.steps is not None:
                     config.total_steps = int(args.steps)
+                changes = _parse_set(args.set)
+                fixed = sorted(set(changes) - set(RESUMABLE_CHANGES))
+                if fixed:
+                    raise ConfigError(
+                        f"--resume keeps the run's config; --set may change only {', '.join(RESUMABLE_CHANGES)}, "
+                        f"not {', '.join(fixed)}"
+                    )
+                config = TrainConfig.from_dict({**config.to_dict(), **changes})
             else:
                 fields = {"algo": args.algo, "scene": args.scene, "seed": args.seed, **_parse_set(args.set)}
                 if args.steps is not None:

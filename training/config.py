@@ -162,6 +162,14 @@ class TrainConfig:
     bc_normalise_q: bool = True
     """With a cloning term, divide the Q term of the actor loss by the batch's mean |Q| (TD3+BC, Fujimoto and Gu
     2021), so that ``bc_weight`` weighs cloning against a Q term of size one whatever the reward scale."""
+    polish_epochs: int = 0
+    """After the last environment step, fit a freshly initialised actor to the planner's action on every labelled
+    transition of the replay buffer (demonstrations and relabelled agent states) for this many epochs: the cloning
+    loss alone, minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. This is DAgger's
+    supervised step on the aggregated data; the online actor, updated at a constant rate with the Q term, fits it
+    less well. 0: off. A finished run can be polished later (``--resume --set polish_epochs=N``)."""
+    polish_lr: float = 1e-3
+    """Starting learning rate of the final cloning fit (``polish_epochs``)."""
     pretrain_updates: int = 0
     """Updates on the demonstrations alone before any interaction (DQfD's pre-training phase): the critic learns
     their TD targets, the actor clones them (no Q term: a critic that has seen only demonstrations cannot yet
@@ -203,6 +211,10 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
+        if self.polish_epochs < 0:
+            raise ConfigError(f"polish_epochs: must be >= 0, got {self.polish_epochs!r}")
+        if self.polish_epochs and not (self.expert_relabel or self.demo_episodes):
+            raise ConfigError("polish_epochs: needs labelled transitions (expert_relabel or demo_episodes)")
         if not self.bc_slow_weight > 0.0:
             raise ConfigError(f"bc_slow_weight: must be positive, got {self.bc_slow_weight!r}")
         if self.bc_weight_final is not None and not 0.0 <= self.bc_weight_final:
@@ -215,7 +227,7 @@ class TrainConfig:
                 raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
         if self.demo_noise < 0:
             raise ConfigError(f"demo_noise: must be >= 0, got {self.demo_noise!r}")
-        for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale"):
+        for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale", "polish_lr"):
             if not getattr(self, name) > 0.0:
                 raise ConfigError(f"{name}: must be positive, got {getattr(self, name)!r}")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
@@ -312,11 +324,18 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "shape": {"scene_overrides": {"episode__obstacle_shape": True}},
     "decay": {"bc_weight_final": 2.0},
     "slow": {"bc_slow_weight": 5.0},
+    "data": {"num_envs": 8, "updates_per_step": 0.125},
+    "size": {"scene_overrides": {"episode__mover_size": True}},
+    "polish": {"polish_epochs": 20},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
 falls linearly from the recipe's 20 to 2 over the run, handing the actor from the planner to the critic;
-``slow``: the planner's slow actions (yielding, braking) weigh 5 times in the cloning loss)."""
+``slow``: the planner's slow actions (yielding, braking) weigh 5 times in the cloning loss; ``data``: 8
+environments at 0.125 updates per step, four times the relabelled states per update, for runs several times
+longer; ``size``: each mover's footprint size in the observation, scene field ``episode.mover_size``;
+``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``). Several
+switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 
 def arm_config(
@@ -331,13 +350,16 @@ def arm_config(
         raise ConfigError(f"unknown recipe {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>|-with-<switch>]")
     fields: dict[str, Any] = {}
     if len(parts) > 2:
-        switch = "-".join(parts[3:])
         table = {"no": ABLATIONS, "with": ADDITIONS}.get(parts[2])
-        if table is None or switch not in table:
+        switches = "-".join(parts[3:]).split("+")
+        if table is None or any(sw not in table for sw in switches) or len(set(switches)) < len(switches):
             raise ConfigError(
-                f"unknown switch in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}> or -with-<{'|'.join(ADDITIONS)}>"
+                f"unknown switch in {arm!r}: expected -no-<{'|'.join(ABLATIONS)}> or -with-<{'|'.join(ADDITIONS)}> "
+                "(several joined by '+', each once)"
             )
-        fields.update(table[switch])
+        for sw in switches:
+            for k, v in table[sw].items():
+                fields[k] = {**fields[k], **v} if k == "scene_overrides" and k in fields else v
     return make_config(
         parts[0],
         algo=parts[1],

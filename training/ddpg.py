@@ -153,6 +153,41 @@ class DDPGAgent:
         self.actor_opt.step()
         return {"actor_loss": actor_loss.item(), "bc_loss": bc_loss.item(), "bc_share": share}
 
+    def polish(self, obs: np.ndarray, target: np.ndarray, epochs: int, generator: torch.Generator) -> list[float]:
+        """Fit a freshly initialised actor to ``target`` actions (n, act_dim) for raw observations ``obs``
+        (n, obs_dim) by the cloning loss alone (``config.polish_epochs``): ``epochs`` shuffled passes in
+        minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. The initial weights come
+        from ``generator``; the normaliser stays as it is. Returns the mean squared error (summed over action
+        components) of each epoch."""
+        cfg = self.config
+        with torch.random.fork_rng():
+            torch.manual_seed(int(torch.randint(2**31 - 1, (1,), generator=generator)))
+            fresh = Actor(self.obs_dim, self.act_dim, tuple(cfg.hidden))
+        self.actor.load_state_dict(fresh.state_dict())
+        x = self.norm(torch.as_tensor(obs, dtype=torch.float32))
+        y = torch.as_tensor(target, dtype=torch.float32)
+        n = len(x)
+        per_epoch = max(n // cfg.batch_size, 1)
+        opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.polish_lr)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * per_epoch)
+        losses = []
+        for _ in range(epochs):
+            order = torch.randperm(n, generator=generator)
+            total = 0.0
+            for i in range(per_epoch):
+                idx = order[i * cfg.batch_size : (i + 1) * cfg.batch_size]
+                loss = ((self.actor(x[idx]) - y[idx]) ** 2).sum(-1).mean()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if cfg.grad_clip > 0:
+                    nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.grad_clip)
+                opt.step()
+                sched.step()
+                total += loss.item()
+            losses.append(total / per_epoch)
+        self.actor_target.load_state_dict(self.actor.state_dict())
+        return losses
+
     # -- state ----------------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, object]:
         """Every network, optimiser and counter (tensors and ints only)."""

@@ -24,8 +24,8 @@ log = logging.getLogger(__name__)
 
 FAR = 1000.0
 """Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
-MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading")
-PAD = {"dynamic_heading": 0.0}
+MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading", "dynamic_size")
+PAD = {"dynamic_heading": 0.0, "dynamic_size": 0.0}
 """What fills the rows of movers a curriculum stage leaves out, where not ``FAR``."""
 
 

@@ -74,11 +74,13 @@ EVAL_FIELDS = (
     "reward",
     "path_ratio",
     "turning_deg",
+    "polished",
 )
 
 
-def eval_row(step: int, wall: float, summary: dict[str, float]) -> dict[str, Any]:
-    """One ``eval.csv`` row (``EVAL_FIELDS``) from ``deck_sim.metrics.summarize``'s summary of an evaluation."""
+def eval_row(step: int, wall: float, summary: dict[str, float], polished: bool = False) -> dict[str, Any]:
+    """One ``eval.csv`` row (``EVAL_FIELDS``) from ``deck_sim.metrics.summarize``'s summary of an evaluation;
+    ``polished`` marks the evaluation after ``polish_epochs`` (the same step as the last online one)."""
     return {
         "step": step,
         "wall_s": round(wall, 2),
@@ -89,7 +91,12 @@ def eval_row(step: int, wall: float, summary: dict[str, float]) -> dict[str, Any
         "reward": summary["mean_reward"],
         "path_ratio": summary["path_ratio"],
         "turning_deg": summary["turning_angle_deg"],
+        "polished": int(polished),
     }
+
+
+RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr")
+"""Config fields a resumed run may change: a longer run, or a final cloning fit added to a finished one."""
 
 
 class CheckpointError(RuntimeError):
@@ -110,7 +117,7 @@ class _Slot:
     obs: np.ndarray | None = None
 
 
-def _actor_meta(config: TrainConfig, layout: ObservationLayout, step: int) -> dict[str, Any]:
+def _actor_meta(config: TrainConfig, layout: ObservationLayout, step: int, polished: bool = False) -> dict[str, Any]:
     return {
         "format": ACTOR_FORMAT,
         "scene": config.scene,
@@ -120,6 +127,7 @@ def _actor_meta(config: TrainConfig, layout: ObservationLayout, step: int) -> di
         "observation_keys": list(layout.keys),
         "observation_shapes": {k: list(v) for k, v in layout.shapes.items()},
         "trained_steps": int(step),
+        "polished": bool(polished),
         "config": config.to_dict(),
         "deck_sim_version": deck_sim.__version__,
         "git_commit": git_commit(),
@@ -201,6 +209,8 @@ class Trainer:
         self.episodes_done = 0
         self.last_stats: dict[str, float] = {}
         self.best_success = -1.0
+        self.polished = False
+        """Whether the actor has had its final cloning fit (``polish_epochs``); it happens once per run."""
         self.demo_summary: dict[str, float] = {}
         self._eval_env: Any = None
         self._tb: Any = None
@@ -216,7 +226,7 @@ class Trainer:
             saved = TrainConfig.from_dict(saved).to_dict()
         except (ConfigError, TypeError, ValueError):
             pass  # compared as saved: the difference is named below
-        diff = [k for k in sorted(set(mine) | set(saved)) if k not in ("total_steps",) and mine.get(k) != saved.get(k)]
+        diff = [k for k in sorted(set(mine) | set(saved)) if k not in RESUMABLE_CHANGES and mine.get(k) != saved.get(k)]
         if diff:
             detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, now {mine.get(k)!r}" for k in diff[:5])
             raise CheckpointError(f"{self.run_dir / 'checkpoint.pt'} was written by another configuration ({detail})")
@@ -265,8 +275,8 @@ class Trainer:
             self._resume_state = None
         # wall-clock of the run, demonstrations and pre-training included, summed over resumed sessions
         self._t_start = time.perf_counter() - self.wall
+        cfg.save(self.run_dir / "config.json")  # (a resumed run may have changed RESUMABLE_CHANGES)
         if not self._started:
-            cfg.save(self.run_dir / "config.json")
             self._open_csv(truncate_after=None)
             self._begin()
         self._started = True
@@ -306,7 +316,10 @@ class Trainer:
         if self.step >= cfg.total_steps:
             if self._last_eval_step != self.step:
                 last_eval = self.evaluate()
-            save_actor(self.run_dir / "actor.npz", self.agent, _actor_meta(cfg, self.layout, self.step))
+            if cfg.polish_epochs and not self.polished and not self._stop:
+                self._polish()
+                last_eval = self.evaluate()
+            save_actor(self.run_dir / "actor.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished))
         self._tb.close()
         return {
             "step": self.step,
@@ -316,6 +329,22 @@ class Trainer:
             "demonstrations": self.demo_summary,
             "stopped": self._stop,
         }
+
+    def _polish(self) -> None:
+        """The final cloning fit on every labelled transition of the buffer (``polish_epochs``), checkpointed."""
+        cfg = self.config
+        rows = np.flatnonzero(self.buffer.labelled[: self.buffer.size] > 0)
+        obs, target = self.buffer.obs[rows], self.buffer.expert_action[rows]
+        log.info("polishing the actor: %d epochs over %d labelled transitions", cfg.polish_epochs, len(rows))
+        t0 = time.perf_counter()
+        losses = self.agent.polish(obs, target, cfg.polish_epochs, torch.Generator().manual_seed(cfg.seed + 2))
+        self._tick()
+        self.polished = True
+        if self._tb is not None:
+            for epoch, loss in enumerate(losses):
+                self._tb.add_scalar("polish/bc_loss", loss, epoch)
+        log.info("polished in %.0f s: cloning loss %.4f -> %.4f", time.perf_counter() - t0, losses[0], losses[-1])
+        self.save_checkpoint()
 
     def close(self) -> None:
         """Release the environments (and their worker process); ``train`` does so when the run ends."""
@@ -447,7 +476,7 @@ class Trainer:
         policy = self.actor_policy()
         results = [run_episode(env, policy, episode=k) for k in range(episodes or cfg.eval_episodes)]
         summary = summarize(results)
-        row = eval_row(self.step, self.wall, summary)
+        row = eval_row(self.step, self.wall, summary, self.polished)
         self._last_eval_step = self.step
         self._append_csv("eval.csv", EVAL_FIELDS, row)
         if self._tb is not None:
@@ -456,21 +485,28 @@ class Trainer:
         summary["success"] = summary["goal_rate"]
         if summary["success"] > self.best_success:
             self.best_success = summary["success"]
-            save_actor(self.run_dir / "actor_best.npz", self.agent, _actor_meta(cfg, self.layout, self.step))
+            save_actor(
+                self.run_dir / "actor_best.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished)
+            )
         return summary
 
     # -- logs ---------------------------------------------------------------------------------------------------
-    def _open_csv(self, truncate_after: int | None) -> None:
+    def _open_csv(self, truncate_after: int | None) -> bool:
+        """Start the CSV logs, keeping the rows up to ``truncate_after`` (a resumed run); whether ``eval.csv``
+        kept a row at exactly that step."""
+        evaluated = False
         for name, fields in (("progress.csv", PROGRESS_FIELDS), ("eval.csv", EVAL_FIELDS)):
             path = self.run_dir / name
             kept: list[dict[str, str]] = []
             if truncate_after is not None and path.exists():
                 with open(path, newline="") as f:
                     kept = [r for r in csv.DictReader(f) if int(r["step"]) <= truncate_after]
+                evaluated = evaluated or (name == "eval.csv" and any(int(r["step"]) == truncate_after for r in kept))
             with open(path, "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=fields)
                 w.writeheader()
                 w.writerows(kept)
+        return evaluated
 
     def _append_csv(self, name: str, fields: tuple[str, ...], row: dict[str, Any]) -> None:
         with open(self.run_dir / name, "a", newline="") as f:
@@ -515,6 +551,7 @@ class Trainer:
             "recent": [[o, float(r)] for o, r in self.recent],
             "last_stats": dict(self.last_stats),
             "best_success": self.best_success,
+            "polished": self.polished,
             "demo_summary": dict(self.demo_summary),
             "agent": self.agent.state_dict(),
             "buffer": self.buffer.state_dict(),
@@ -552,6 +589,7 @@ class Trainer:
         self.recent.extend((o, float(r)) for o, r in state["recent"])
         self.last_stats = dict(state["last_stats"])
         self.best_success = float(state["best_success"])
+        self.polished = bool(state.get("polished", False))  # (checkpoints from before the switch: not polished)
         self.demo_summary = dict(state["demo_summary"])
         self.rng.bit_generator.state = state["rng"]
         for slot, saved in zip(self.slots, state["slots"], strict=True):
@@ -570,7 +608,8 @@ class Trainer:
             slot.ret, slot.length = float(saved["ret"]), int(saved["length"])
         self.noise.load_state_dict(state["noise"])  # _start_episode reset it
         torch.set_rng_state(state["torch_rng"])
-        self._open_csv(truncate_after=self.step)
+        if self._open_csv(truncate_after=self.step):
+            self._last_eval_step = self.step  # the run's evaluation at this step is on file already
         self._started = True
         log.info("resumed %s at step %d", self.run_dir, self.step)
 

@@ -171,6 +171,10 @@ class EpisodeSpec:
     """Also observe the shape of every obstacle: the nearest point of each static obstacle's and each mover's
     footprint (``static_nearest``, ``dynamic_nearest``, relative to the agent, in the same order as their centres)
     and each mover's heading (``dynamic_heading``, cos and sin). Off by default (the paper's observation)."""
+    mover_size: bool = False
+    """Also observe each mover's size (``dynamic_size``, (n, 2), in the same order as ``dynamic_obstacles``): the
+    half-length and half-width of its footprint, rounding radius included, metres (on deck 1: (9.15, 6.8) for the
+    taxiing aircraft, (2.0, 1.0) for a tractor). Off by default (the paper's observation)."""
 
 
 @dataclass(frozen=True)

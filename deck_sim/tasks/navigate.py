@@ -183,6 +183,7 @@ class Navigate(composer.Task):
         self._no_fallback = np.zeros(len(self._kinds), dtype=bool)  # (shared by the fast path's predictions)
         self._mover_half = np.array([m.footprint[1] for m in self._movers]).reshape(-1, 2)
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
+        self._mover_size = self._mover_half + self._mover_radius_fp[:, None]
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
@@ -264,6 +265,8 @@ class Navigate(composer.Task):
             shapes["predicted"] = (n, self._horizon, 2)
         if self.spec.episode.obstacle_shape:
             shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
+        if self.spec.episode.mover_size:
+            shapes["dynamic_size"] = (n, 2)
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
         self._obs_shapes = shapes
         self._obs = {k: np.zeros(v) for k, v in shapes.items()}  # until the first episode starts
@@ -898,6 +901,8 @@ class Navigate(composer.Task):
             obs["dynamic_nearest"] = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
             yaw = st["yaw"][1:][order_m]
             obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+        if self.spec.episode.mover_size:
+            obs["dynamic_size"] = self._mover_size[order_m]
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
         obs["velocity"] = st["vel"][0]
