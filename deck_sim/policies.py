@@ -184,13 +184,17 @@ class LearnedPolicy:
     @property
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
-        the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes and
-        ``episode__mover_size`` for one trained on the movers' sizes."""
+        the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
+        ``episode__mover_size`` for one trained on the movers' sizes and the ``episode__predicted_frame`` it was
+        trained with."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True
         if "dynamic_size" in self.keys:
             out["episode__mover_size"] = True
+        frame = dict(self.meta.get("scene_overrides") or {}).get("episode__predicted_frame")
+        if frame is not None:
+            out["episode__predicted_frame"] = frame
         return out
 
     def reset(self) -> None:

@@ -167,3 +167,22 @@ def test_mover_size_observation_follows_the_movers_order():
     # one taxiing aircraft (17-18 m long) among tractors (about 4 m)
     lengths = sorted((2 * obs["dynamic_size"][:, 0]).tolist())
     assert lengths[-1] > 17.0 and lengths[0] < 5.0
+
+
+def test_predicted_frame_mover_gives_each_movers_predicted_displacement():
+    import deck_sim
+
+    kw = {"seed": 4, "episode__predictor": "constant_velocity"}
+    agent_frame = deck_sim.load("deck1", **kw)
+    mover_frame = deck_sim.load("deck1", episode__predicted_frame="mover", **kw)
+    a, b = agent_frame.reset(), mover_frame.reset()
+    for _ in range(4):
+        a, b = agent_frame.step(np.array([0.5, 0.2])), mover_frame.step(np.array([0.5, 0.2]))
+    np.testing.assert_array_equal(a.observation["dynamic_obstacles"], b.observation["dynamic_obstacles"])
+    np.testing.assert_allclose(
+        b.observation["predicted"],
+        a.observation["predicted"] - a.observation["dynamic_obstacles"][:, None],
+        atol=1e-9,
+    )
+    with pytest.raises(deck_sim.SceneSpecError, match="predicted_frame"):
+        deck_sim.load("deck1", episode__predicted_frame="target")

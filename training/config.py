@@ -327,6 +327,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "data": {"num_envs": 8, "updates_per_step": 0.125},
     "size": {"scene_overrides": {"episode__mover_size": True}},
     "polish": {"polish_epochs": 20},
+    "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -334,7 +335,8 @@ falls linearly from the recipe's 20 to 2 over the run, handing the actor from th
 ``slow``: the planner's slow actions (yielding, braking) weigh 5 times in the cloning loss; ``data``: 8
 environments at 0.125 updates per step, four times the relabelled states per update, for runs several times
 longer; ``size``: each mover's footprint size in the observation, scene field ``episode.mover_size``;
-``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``). Several
+``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``;
+``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

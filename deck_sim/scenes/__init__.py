@@ -171,6 +171,10 @@ class EpisodeSpec:
     """Also observe the shape of every obstacle: the nearest point of each static obstacle's and each mover's
     footprint (``static_nearest``, ``dynamic_nearest``, relative to the agent, in the same order as their centres)
     and each mover's heading (``dynamic_heading``, cos and sin). Off by default (the paper's observation)."""
+    predicted_frame: Literal["agent", "mover"] = "agent"
+    """Where the observation's ``predicted`` positions are measured from: ``agent`` (the paper's eq. 8: predicted
+    position minus the agent's) or ``mover`` (predicted position minus that mover's position now: its predicted
+    displacement, zero for a mover that is predicted to stand)."""
     mover_size: bool = False
     """Also observe each mover's size (``dynamic_size``, (n, 2), in the same order as ``dynamic_obstacles``): the
     half-length and half-width of its footprint, rounding radius included, metres (on deck 1: (9.15, 6.8) for the

@@ -12,7 +12,8 @@ One control step (``control_period``, 0.5 s by default):
 Observation (all relative vectors in the world frame, metres; obstacles nearest first):
     ``target`` (2) target minus agent; ``static_obstacles`` (m, 2) static obstacles (on the deck the island is
     the last of m = 15 + 1) minus agent; ``dynamic_obstacles`` (n, 2) movers now minus agent; ``predicted``
-    (n, N, 2) predicted mover positions minus agent (absent when N = 0); ``position`` (2) the agent's own
+    (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
+    ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw.
 """
 
@@ -184,6 +185,7 @@ class Navigate(composer.Task):
         self._mover_half = np.array([m.footprint[1] for m in self._movers]).reshape(-1, 2)
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
         self._mover_size = self._mover_half + self._mover_radius_fp[:, None]
+        self._predicted_from_agent = spec.episode.predicted_frame == "agent"
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
@@ -895,7 +897,8 @@ class Navigate(composer.Task):
             "dynamic_obstacles": movers[order_m],
         }
         if self._horizon > 0:
-            obs["predicted"] = self._prediction.positions[order_m] - agent_xy
+            origin = agent_xy if self._predicted_from_agent else st["xy"][1:][order_m][:, None]
+            obs["predicted"] = self._prediction.positions[order_m] - origin
         if self.spec.episode.obstacle_shape:
             obs["static_nearest"] = self._static_fp.nearest_points(agent_xy)[order_s] - agent_xy
             obs["dynamic_nearest"] = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
