@@ -583,3 +583,18 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
     assert "may change only total_steps, polish_epochs, polish_lr, not gamma" in capsys.readouterr().err
     assert main([*base, "--set", "polish_epochs=2"]) == 0
     assert load_checkpoint(out / "checkpoint.pt")["polished"] is True
+
+
+def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_path):
+    from deck_sim.policies import LearnedPolicy
+
+    overrides = {"episode__predicted_frame": "mover", "episode__mover_size": True}
+    t = Trainer(
+        _short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10, scene_overrides=overrides),
+        tmp_path / "r",
+        progress=False,
+    )
+    t.train()
+    policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
+    assert policy.scene_overrides == {"episode__predictor": "mpc", **overrides}
+    assert "dynamic_size" in policy.keys
