@@ -36,7 +36,8 @@ from training.loop import Trainer  # noqa: E402
 
 def read_eval(run: Path) -> list[dict[str, float]]:
     with open(run / "eval.csv", newline="") as f:
-        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+        # (columns added since a run was logged, such as ``polished``, are empty in its older rows)
+        return [{k: float(v) if v else 0.0 for k, v in r.items()} for r in csv.DictReader(f)]
 
 
 def main() -> None:
@@ -67,19 +68,19 @@ def main() -> None:
                 Trainer(cfg, run, resume=resume).train()
             curves.setdefault(arm, []).append(read_eval(run))
 
-    print(f"\nscene {args.scene}; held-out evaluation: {args.eval_episodes} episodes of the seed-500 stream")
-    print("| arm | seeds | steps | train time | success | collision | timeout | mean reward |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(f"\nscene {args.scene}; held-out evaluation: episodes of the seed-500 stream; last evaluation of each run")
+    print("| arm | seeds | steps | train time | eval episodes | success | collision | timeout | mean reward |")
+    print("|---|---|---|---|---|---|---|---|---|")
     summary = {}
     for arm, runs in curves.items():
         last = [r[-1] for r in runs]
         row = {
             k: float(np.mean([x[k] for x in last]))
-            for k in ("step", "wall_s", "success", "collision", "timeout", "reward")
+            for k in ("step", "wall_s", "episodes", "success", "collision", "timeout", "reward")
         }
         summary[arm] = row
         print(
-            f"| {arm} | {len(runs)} | {row['step']:.0f} | {row['wall_s'] / 60:.1f} min | "
+            f"| {arm} | {len(runs)} | {row['step']:.0f} | {row['wall_s'] / 60:.1f} min | {row['episodes']:.0f} | "
             f"{100 * row['success']:.1f} % | {100 * row['collision']:.1f} % | {100 * row['timeout']:.1f} % | "
             f"{row['reward']:.1f} |"
         )
@@ -105,7 +106,9 @@ def main() -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="lower right")
-    fig.suptitle(f"{args.scene}: learning curves ({args.eval_episodes} held-out episodes per point)")
+    sizes = {int(x["episodes"]) for runs in curves.values() for r in runs for x in r}
+    counts = " or ".join(str(n) for n in sorted(sizes))
+    fig.suptitle(f"{args.scene}: learning curves ({counts} held-out seed-500 episodes per point)")
     fig.tight_layout()
     plot = Path(args.plot) if args.plot else Path(args.out) / f"learning_{args.scene}.png"
     plot.parent.mkdir(parents=True, exist_ok=True)

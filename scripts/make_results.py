@@ -32,6 +32,7 @@ from tqdm import tqdm  # noqa: E402
 
 from deck_sim.policies import TRAINED_DIR  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
+from training.config import shipped_arm  # noqa: E402
 from training.evaluate import (  # noqa: E402
     LEARNED_AGENTS,
     EvalConfig,
@@ -48,8 +49,8 @@ from training.evaluate import (  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = "mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted"
 RUN_FOLDERS = {
-    "mddpg": "{scene}-tuned-mddpg-seed0",
-    "ddpg": "{scene}-tuned-ddpg-seed0",
+    "mddpg": "{scene}-{mddpg}-seed0",
+    "ddpg": "{scene}-{ddpg}-seed0",
     "dqn": "{scene}-dqn-seed0",
     "a2c": "{scene}-a2c-seed0",
 }
@@ -195,7 +196,8 @@ def main() -> None:
         runs = {}
         for agent in agents:
             if agent in RUN_FOLDERS:
-                run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene)
+                recipes = {a: shipped_arm(scene, a)[0] for a in ("mddpg", "ddpg")}
+                run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
                 if (run / "eval.csv").exists():
                     runs[agent] = run
         if runs:

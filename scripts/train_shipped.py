@@ -2,18 +2,19 @@
 
 For each scene and agent (``--algos``, default all four learned agents of the paper):
 
-- ``mddpg`` and ``ddpg``: one ``deck-sim train --algo <algo> --preset tuned`` run (``training.loop.Trainer``,
-  recipe ``arm_config("tuned-<algo>", ...)``) in ``--out/<scene>-tuned-<algo>-seed<seed>`` (the folder
-  ``benchmarks/learning.py`` reads for that arm). DDPG is MDDPG without prediction (predictor ``none``).
+- ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
+  ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks ``tuned-<algo>-with-data+polish``
+  for 160,000 steps) in ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py`` writes for
+  that arm). DDPG is MDDPG without prediction (predictor ``none``), same recipe and budget.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
   ``--out/<scene>-<algo>-seed<seed>``, held-out evaluation every 10,000 steps on 50 episodes; the networks are
   exported to numpy (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor
   ``training``.
 
-Every agent of a scene trains for the same number of environment steps, ``SHIP_STEPS[scene]`` (the budget of
-the first shipped MDDPG actors), so the four are compared at equal budget. DQN and A2C step two to five times
-faster than the DDPG trainer on this machine (about 250 steps/s alone, 80-100 beside other training), so they
-would afford more steps in the same wall-clock time; ``--steps`` sets another budget for every agent.
+MDDPG and DDPG of a scene train for the same number of environment steps (``SHIPPED_RECIPES``); DQN and A2C
+for ``SB3_STEPS[scene]`` (the budget of the first shipped actors: 40,000 steps on deck 1 and the square, 60,000
+on deck 2). The decks' DDPG recipe runs 160,000 steps in about the wall-clock time its first recipe took for
+40,000, by collecting four transitions per update instead of two. ``--steps`` sets one budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 actor with the best periodic held-out evaluation (seed-500 stream) is then measured on ``--episodes`` further
@@ -58,10 +59,11 @@ import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
+from training.config import SHIPPED_EVAL_EPISODES, SHIPPED_EVAL_EVERY, shipped_arm  # noqa: E402
 
 HELD_OUT_SEED = 1000
-SHIP_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
-"""Training steps of every shipped agent of a scene (MDDPG, DDPG, DQN, A2C: equal budget)."""
+SB3_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
+"""Training steps of the shipped DQN and A2C agents of a scene (MDDPG and DDPG: ``SHIPPED_RECIPES``)."""
 SB3_EVAL_EVERY, SB3_EVAL_EPISODES = 10_000, 50
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
 
@@ -76,12 +78,12 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
     """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives."""
     if algo in ("mddpg", "ddpg"):
-        return out / f"{scene}-tuned-{algo}-seed{seed}"  # benchmarks/learning.py's folder for that arm
+        return out / f"{scene}-{shipped_arm(scene, algo)[0]}-seed{seed}"  # benchmarks/learning.py's folder
     return out / f"{scene}-{algo}-seed{seed}"
 
 
-def default_steps(scene: str) -> int:
-    return SHIP_STEPS.get(scene, 60_000)
+def default_steps(scene: str, algo: str) -> int:
+    return shipped_arm(scene, algo)[1] if algo in ("mddpg", "ddpg") else SB3_STEPS.get(scene, 60_000)
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
@@ -92,7 +94,12 @@ def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[
         from training.config import TrainConfig, arm_config
         from training.loop import Trainer
 
-        cfg = TrainConfig.from_dict({**arm_config(f"tuned-{algo}", scene, steps, seed).to_dict(), **fields})
+        recipe = shipped_arm(scene, algo)[0]
+        every, episodes = (
+            (SHIPPED_EVAL_EVERY, SHIPPED_EVAL_EPISODES) if recipe != f"tuned-{algo}" else (5_000, 50)
+        )
+        base = arm_config(recipe, scene, steps, seed, eval_every=every, eval_episodes=episodes)
+        cfg = TrainConfig.from_dict({**base.to_dict(), **fields})
         resume = (run / "checkpoint.pt").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
         Trainer(cfg, run, resume=resume, progress=False).train()
@@ -130,7 +137,7 @@ def main() -> None:
     parser.add_argument("--scenes", default="deck1,deck2,square")
     parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
     parser.add_argument("--steps", type=int, default=None,
-                        help=f"training steps for every agent (default per scene: {SHIP_STEPS})")
+                        help="training steps for every agent (default: SHIPPED_RECIPES, SB3_STEPS)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
@@ -162,7 +169,7 @@ def main() -> None:
             cost = 0 if args.evaluate_only or (run / "actor.npz").exists() else 1 if algo in ("dqn", "a2c") else 2
             work.append((cost, len(work), scene, algo, run, dest))
     for _, _, scene, algo, run, dest in sorted(work):
-        steps = args.steps if args.steps is not None else default_steps(scene)
+        steps = args.steps if args.steps is not None else default_steps(scene, algo)
         if args.evaluate_only:
             if not dest.exists():
                 raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
@@ -187,6 +194,7 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
+            "recipe": shipped_arm(scene, algo)[0] if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),
@@ -216,23 +224,25 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         "",
         "Weights-only actors (`deck_sim.policies.LearnedPolicy`, numpy alone), written by",
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
-        "`training.loop.Trainer` runs of the tuned recipe (DDPG: the same agent and budget without the MPC",
-        "prediction); DQN and A2C are stable-baselines3 runs (`training.baselines`) exported to numpy. Each file is",
-        "the actor of the run's best periodic evaluation (seed-500 episodes). Held-out: consecutive episodes of",
+        "`training.loop.Trainer` runs of the recipe in the table (`training.config.SHIPPED_RECIPES`; DDPG: the same",
+        "agent, recipe and budget without the MPC prediction); DQN and A2C are stable-baselines3 runs",
+        "(`training.baselines`) exported to numpy. Each file is the actor of the run's best periodic evaluation",
+        "(seed-500 episodes; with `polish`, the fitted actor is evaluated too). Held-out: consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
         "(never a training, demonstration or model-selection episode). Training time: wall-clock on the machine",
         "named in `results.json`, periodic evaluations included, while other work shared it.",
         "",
-        "| scene | agent | held-out episodes | success | collision | timeout | left the deck | mean reward |"
+        "| scene | agent | recipe | held-out episodes | success | collision | timeout | left the deck | mean reward |"
         " path / straight | turning angle | training steps | training time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
     for scene in sorted(report):
         for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
             r = report[scene][algo]
             lines.append(
-                f"| {scene} | {LABELS.get(algo, algo)} | {r['episodes']} | {100 * r['success']:.1f} % | "
+                f"| {scene} | {LABELS.get(algo, algo)} | {r.get('recipe', '')} | {r['episodes']} | "
+                f"{100 * r['success']:.1f} % | "
                 f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
                 f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
                 f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"

@@ -340,6 +340,27 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 
+SHIPPED_RECIPES: dict[str, tuple[str, int]] = {
+    "deck1": ("tuned-{algo}-with-data+polish", 160_000),
+    "deck2": ("tuned-{algo}-with-data+polish", 160_000),
+    "square": ("tuned-{algo}", 40_000),
+}
+"""Recipe (``{algo}``: ``mddpg`` or ``ddpg``) and training steps of the MDDPG and DDPG actors shipped for each scene
+(``scripts/train_shipped.py``). The decks' recipe collects four times the transitions per update of ``tuned``
+and ends with the cloning fit, 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on this
+machine; the square's actors have not been retrained with it yet."""
+SHIPPED_EVAL_EVERY, SHIPPED_EVAL_EPISODES = 20_000, 100
+"""Periodic held-out evaluations of the shipped recipe runs (``benchmarks/learning.py --eval-every 20000
+--eval-episodes 100``); the ``tuned`` runs of the square used ``arm_config``'s 5,000 and 50."""
+
+
+def shipped_arm(scene: str, algo: str) -> tuple[str, int]:
+    """The recipe name and steps behind the shipped ``algo`` actor of ``scene`` (``tuned-<algo>`` and 60,000 steps
+    for a scene not in ``SHIPPED_RECIPES``)."""
+    recipe, steps = SHIPPED_RECIPES.get(scene, ("tuned-{algo}", 60_000))
+    return recipe.format(algo=algo), steps
+
+
 def arm_config(
     arm: str, scene: str, steps: int, seed: int, eval_every: int = 5_000, eval_episodes: int = 50
 ) -> TrainConfig:
