@@ -94,12 +94,18 @@ def main() -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for arm, runs in curves.items():
-        for i, r in enumerate(runs):
-            step = [x["step"] for x in r]
+        for i, every in enumerate(runs):
             kw = {"label": arm if i == 0 else None, "color": f"C{arms.index(arm)}", "marker": "o", "ms": 3}
-            axes[0].plot(step, [100 * x["success"] for x in r], **kw)
-            axes[1].plot([x["wall_s"] / 60 for x in r], [100 * x["success"] for x in r], **kw)
-            axes[2].plot(step, [x["reward"] for x in r], **kw)
+            # the polished actor's evaluation (the final cloning fit, at the last step) is drawn as a star
+            for r, style in (([x for x in every if not x.get("polished")], {}),
+                             ([x for x in every if x.get("polished")], {"marker": "*", "ms": 11, "ls": "none"})):
+                if not r:
+                    continue
+                step = [x["step"] for x in r]
+                axes[0].plot(step, [100 * x["success"] for x in r], **{**kw, **style})
+                axes[1].plot([x["wall_s"] / 60 for x in r], [100 * x["success"] for x in r], **{**kw, **style})
+                axes[2].plot(step, [x["reward"] for x in r], **{**kw, **style})
+                kw["label"] = None
     axes[0].set(xlabel="environment steps", ylabel="held-out success (%)", ylim=(-2, 102))
     axes[1].set(xlabel="training wall-clock (min, this machine)", ylabel="held-out success (%)", ylim=(-2, 102))
     axes[2].set(xlabel="environment steps", ylabel="mean episode reward (held-out)")

@@ -71,7 +71,7 @@ LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c":
 def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
     """The actor on ``episodes`` consecutive episodes of ``deck_sim.load(scene, seed=1000)``."""
     policy = LearnedPolicy.load(actor)
-    env = deck_sim.load(scene, seed=HELD_OUT_SEED, episode__predictor=policy.predictor)
+    env = deck_sim.load(scene, seed=HELD_OUT_SEED, **policy.scene_overrides)  # its predictor and observation
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
 
 

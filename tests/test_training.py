@@ -165,6 +165,11 @@ def test_observation_layout_selects_and_pads():
     assert padded[sl["heading"]].tolist() == [8, 9]
     nopred = full.without(("predicted",))
     assert full.select(padded[None], nopred).shape == (1, nopred.dim)
+    # the movers' sizes pad with 0; in the mover frame so do the predicted displacements
+    full_s = ObservationLayout({"dynamic_size": (3, 2), "predicted": (3, 1, 2)})
+    small_s = ObservationLayout({"dynamic_size": (1, 2), "predicted": (1, 1, 2)})
+    out = small_s.pad_to(np.ones(small_s.dim, dtype=np.float32), full_s, {"predicted": 0.0})
+    assert out.tolist() == [1, 1] + [0] * 4 + [1, 1] + [0] * 4
 
 
 def test_config_errors_name_the_field():
@@ -564,13 +569,23 @@ def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_
     later = Trainer(_short(polish_epochs=30), tmp_path / "plain", resume=True, progress=False)
     later.train()
     assert [r["polished"] for r in _rows(tmp_path / "plain" / "eval.csv")] == ["0", "1"]  # no second online row
-    for k, v in _actor_arrays(tmp_path / "polished").items():
-        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "plain")[k], err_msg=k)
+    assert _rows(tmp_path / "plain" / "eval.csv") == evals
+    for name in ("actor.npz", "actor_best.npz"):
+        with np.load(tmp_path / "polished" / name) as a, np.load(tmp_path / "plain" / name) as b:
+            for k in a.files:
+                if k != "meta":
+                    np.testing.assert_array_equal(a[k], b[k], err_msg=f"{name} {k}")
     again = Trainer(_short(polish_epochs=30), tmp_path / "plain", resume=True, progress=False)
     again.train()  # polished once: resuming again changes nothing
     assert len(_rows(tmp_path / "plain" / "eval.csv")) == 2
-    with pytest.raises(ConfigError, match="polish_epochs"):
-        make_config(polish_epochs=-1)
+    # a polished run is finished: neither extended nor polished again with other settings
+    with pytest.raises(CheckpointError, match="cannot be extended"):
+        Trainer(_short(polish_epochs=30, total_steps=160), tmp_path / "plain", resume=True, progress=False).train()
+    with pytest.raises(CheckpointError, match="polished with polish_epochs = 30"):
+        Trainer(_short(polish_epochs=5), tmp_path / "plain", resume=True, progress=False).train()
+    for bad in (-1, 2.0):
+        with pytest.raises(ConfigError, match="polish_epochs"):
+            make_config(polish_epochs=bad)
 
 
 def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):

@@ -228,6 +228,10 @@ def train_baseline(
         earlier = _read_rows(out / "eval.csv")
         wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock counts every session
         best_success = max((float(r["success"]) for r in earlier), default=-1.0)
+        with open(out / "eval.csv", "w", newline="") as f:  # (the header of today's columns, for older runs)
+            w = csv.DictWriter(f, fieldnames=EVAL_FIELDS, restval="")
+            w.writeheader()
+            w.writerows({k: r.get(k, "") for k in EVAL_FIELDS} for r in earlier)
     else:
         wall_before, best_success = 0.0, -1.0
         if model_path.exists():

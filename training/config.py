@@ -211,8 +211,8 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
-        if self.polish_epochs < 0:
-            raise ConfigError(f"polish_epochs: must be >= 0, got {self.polish_epochs!r}")
+        if isinstance(self.polish_epochs, bool) or not isinstance(self.polish_epochs, int) or self.polish_epochs < 0:
+            raise ConfigError(f"polish_epochs: must be an integer >= 0, got {self.polish_epochs!r}")
         if self.polish_epochs and not (self.expert_relabel or self.demo_episodes):
             raise ConfigError("polish_epochs: needs labelled transitions (expert_relabel or demo_episodes)")
         if not self.bc_slow_weight > 0.0:

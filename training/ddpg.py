@@ -160,7 +160,7 @@ class DDPGAgent:
         from ``generator``; the normaliser stays as it is. Returns the mean squared error (summed over action
         components) of each epoch."""
         cfg = self.config
-        with torch.random.fork_rng():
+        with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(torch.randint(2**31 - 1, (1,), generator=generator)))
             fresh = Actor(self.obs_dim, self.act_dim, tuple(cfg.hidden))
         self.actor.load_state_dict(fresh.state_dict())

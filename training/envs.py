@@ -61,14 +61,19 @@ class ObservationLayout:
         sl = self.slices()
         return np.concatenate([flat[..., sl[k]] for k in target.keys], axis=-1)
 
-    def pad_to(self, flat: np.ndarray, full: ObservationLayout) -> np.ndarray:
-        """Flat observations of a scene with fewer movers, padded (nearest-first rows kept) to ``full``."""
+    def pad_to(
+        self, flat: np.ndarray, full: ObservationLayout, fills: dict[str, float] | None = None
+    ) -> np.ndarray:
+        """Flat observations of a scene with fewer movers, padded (nearest-first rows kept) to ``full``.
+
+        A missing mover's rows hold ``FAR`` (``PAD`` where given, then ``fills``: e.g. 0 for ``predicted`` when
+        it holds each mover's own displacement, ``episode.predicted_frame = "mover"``)."""
         sl = self.slices()
         parts = []
         for k, shape in full.shapes.items():
             v = flat[..., sl[k]].reshape(*flat.shape[:-1], *self.shapes[k])
             if k in MOVER_KEYS and self.shapes[k][0] < shape[0]:
-                fill = PAD.get(k, FAR)
+                fill = {**PAD, **(fills or {})}.get(k, FAR)
                 pad = np.full((*flat.shape[:-1], shape[0] - self.shapes[k][0], *shape[1:]), fill, dtype=flat.dtype)
                 v = np.concatenate([v, pad], axis=flat.ndim - 1)
             parts.append(v.reshape(*flat.shape[:-1], -1))

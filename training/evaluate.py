@@ -704,9 +704,15 @@ def plot_learning_curves(runs: dict[str, str | os.PathLike[str]], out: str | os.
             rows = list(csv.DictReader(f))
         if not rows:
             raise ValueError(f"{path} holds no evaluation rows")
+        polished = [r for r in rows if r.get("polished") == "1"]  # the final cloning fit, at the last step
+        rows = [r for r in rows if r.get("polished") != "1"]
         step = [float(r["step"]) for r in rows]
-        ax_r.plot(step, [float(r["reward"]) for r in rows], marker="o", ms=3, label=label)
+        (line,) = ax_r.plot(step, [float(r["reward"]) for r in rows], marker="o", ms=3, label=label)
         ax_s.plot(step, [100 * float(r["success"]) for r in rows], marker="o", ms=3, label=label)
+        for r in polished:
+            kw = {"marker": "*", "ms": 10, "color": line.get_color(), "linestyle": "none"}
+            ax_r.plot([float(r["step"])], [float(r["reward"])], **kw)
+            ax_s.plot([float(r["step"])], [100 * float(r["success"])], **kw)
     ax_r.set(xlabel="environment steps", ylabel="average episode reward (held-out)", title=title or "reward")
     ax_s.set(xlabel="environment steps", ylabel="success % (held-out)", title="success", ylim=(0, 100))
     for ax in (ax_r, ax_s):

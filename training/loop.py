@@ -231,6 +231,22 @@ class Trainer:
             detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, now {mine.get(k)!r}" for k in diff[:5])
             raise CheckpointError(f"{self.run_dir / 'checkpoint.pt'} was written by another configuration ({detail})")
 
+    def _check_polished(self, saved: dict[str, Any], end: int) -> None:
+        """A polished run is finished: its actor is no longer the online one, so it can be neither extended nor
+        polished again with other settings."""
+        if end > self.step:
+            raise CheckpointError(
+                f"{self.run_dir} was polished at step {self.step} (polish_epochs): it cannot be extended to {end} "
+                "steps; train a new run with more steps instead"
+            )
+        for k in ("polish_epochs", "polish_lr"):
+            default = getattr(TrainConfig(), k)
+            if saved.get(k, default) != getattr(self.config, k):
+                raise CheckpointError(
+                    f"{self.run_dir} was polished with {k} = {saved.get(k, default)!r}; it cannot be polished again "
+                    f"with {getattr(self.config, k)!r}"
+                )
+
     # -- curriculum and environments ---------------------------------------------------------------------------
     def _stage_index(self) -> int:
         stages = self.config.curriculum
@@ -247,7 +263,8 @@ class Trainer:
     def _obs(self, slot: _Slot, flat: np.ndarray) -> np.ndarray:
         if slot.layout.keys == self.layout.keys and slot.layout.shapes == self.layout.shapes:
             return flat
-        return slot.layout.pad_to(flat, self.layout).astype(np.float32)
+        fills = {"predicted": 0.0} if self.config.scene_overrides.get("episode__predicted_frame") == "mover" else None
+        return slot.layout.pad_to(flat, self.layout, fills).astype(np.float32)
 
     def _start_episode(self, slot: _Slot, stage: int | None = None) -> None:
         cfg = self.config
@@ -271,8 +288,11 @@ class Trainer:
         cfg = self.config
         end = min(cfg.total_steps, stop_at) if stop_at is not None else cfg.total_steps
         if self._resume_state is not None:
-            self._restore(self._resume_state)
+            saved = self._resume_state
+            self._restore(saved)
             self._resume_state = None
+            if self.polished:
+                self._check_polished(saved["config"], end)
         # wall-clock of the run, demonstrations and pre-training included, summed over resumed sessions
         self._t_start = time.perf_counter() - self.wall
         cfg.save(self.run_dir / "config.json")  # (a resumed run may have changed RESUMABLE_CHANGES)
@@ -316,10 +336,18 @@ class Trainer:
         if self.step >= cfg.total_steps:
             if self._last_eval_step != self.step:
                 last_eval = self.evaluate()
-            if cfg.polish_epochs and not self.polished and not self._stop:
+                self.save_checkpoint()  # (with the best success so far: a later polish is compared with it)
+            owed = bool(cfg.polish_epochs) and not self.polished
+            if owed and not self._stop:
+                # the checkpoint is written after the polished evaluation: a run that dies before it polishes again
                 self._polish()
                 last_eval = self.evaluate()
-            save_actor(self.run_dir / "actor.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished))
+                self.save_checkpoint()
+                owed = False
+            if not owed:  # (a run stopped while its polish is owed is not finished: no actor.npz yet)
+                save_actor(
+                    self.run_dir / "actor.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished)
+                )
         self._tb.close()
         return {
             "step": self.step,
@@ -331,7 +359,7 @@ class Trainer:
         }
 
     def _polish(self) -> None:
-        """The final cloning fit on every labelled transition of the buffer (``polish_epochs``), checkpointed."""
+        """The final cloning fit on every labelled transition of the buffer (``polish_epochs``)."""
         cfg = self.config
         rows = np.flatnonzero(self.buffer.labelled[: self.buffer.size] > 0)
         obs, target = self.buffer.obs[rows], self.buffer.expert_action[rows]
@@ -344,7 +372,6 @@ class Trainer:
             for epoch, loss in enumerate(losses):
                 self._tb.add_scalar("polish/bc_loss", loss, epoch)
         log.info("polished in %.0f s: cloning loss %.4f -> %.4f", time.perf_counter() - t0, losses[0], losses[-1])
-        self.save_checkpoint()
 
     def close(self) -> None:
         """Release the environments (and their worker process); ``train`` does so when the run ends."""
