@@ -218,6 +218,9 @@ class VisibilityGraph:
         nodes = nodes[~points_inside(nodes, self._normals, self._offsets)]
         self.nodes = nodes
         self._visible: dict[int, np.ndarray] = {}
+        self._goals: dict[bytes, list[np.ndarray | None]] = {}
+        """goal -> [obstacles containing it, nodes that see it, node distances to it] (the last two once a path
+        needs the graph): goals repeat (the movers' spots, the agent's target), so each is worked out once."""
 
     def blocked(self, a: np.ndarray, b: np.ndarray, ignore: np.ndarray | None = None) -> np.ndarray:
         """Whether segments a[i] -> b[i] cross a grown obstacle (except those masked by ``ignore`` (k,))."""
@@ -255,6 +258,22 @@ class VisibilityGraph:
             self._visible[i] = cached
         return cached
 
+    def _goal(self, goal: np.ndarray, nodes: bool = False) -> list[np.ndarray | None]:
+        """[obstacles containing ``goal``, nodes from which the last segment to it is allowed, node distances to
+        it] (the last two only with ``nodes``, else possibly None), cached per goal (at most 256 goals: then the
+        oldest is forgotten). Read only."""
+        key = goal.tobytes()
+        cached = self._goals.get(key)
+        if cached is None:
+            if len(self._goals) >= 256:
+                del self._goals[next(iter(self._goals))]
+            cached = self._goals[key] = [self._containing(goal), None, None]
+        if nodes and cached[1] is None:
+            in_goal, n = cached[0], len(self.nodes)
+            cached[1] = ~self.blocked(np.repeat(goal[None], n, 0), self.nodes, in_goal) & self._leaving(goal, in_goal)
+            cached[2] = np.linalg.norm(self.nodes - goal, axis=1)
+        return cached
+
     def shortest_path(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Shortest polyline (m, 2) from ``start`` to ``goal`` including both ends.
 
@@ -267,7 +286,7 @@ class VisibilityGraph:
         start = np.asarray(start, dtype=np.float64)
         goal = np.asarray(goal, dtype=np.float64)
         # the first and last segments may leave the obstacles that contain their end point
-        in_start, in_goal = self._containing(start), self._containing(goal)
+        in_start, in_goal = self._containing(start), self._goal(goal)[0]
         direct_ok = not self.blocked(start, goal, in_start | in_goal)[0]
         if direct_ok and (in_start.any() or in_goal.any()):
             # a direct segment between points inside obstacles must also leave and enter them properly
@@ -280,12 +299,11 @@ class VisibilityGraph:
             return np.stack([start, goal])
         n = len(self.nodes)
         ok_start = ~self.blocked(np.repeat(start[None], n, 0), self.nodes, in_start) & self._leaving(start, in_start)
-        ok_goal = ~self.blocked(np.repeat(goal[None], n, 0), self.nodes, in_goal) & self._leaving(goal, in_goal)
+        _, ok_goal, dist_goal = self._goal(goal, nodes=True)
         from_start = np.flatnonzero(ok_start) if n else []
         to_goal = set(np.flatnonzero(ok_goal).tolist()) if n else set()
         if len(from_start) == 0 or not to_goal:
             raise NoPathError(f"no visible graph node from {start.round(2)} or to {goal.round(2)}")
-        dist_goal = np.linalg.norm(self.nodes - goal, axis=1)
         g = np.full(n, np.inf)
         parent = np.full(n, -1)
         heap: list[tuple[float, int]] = []

@@ -124,3 +124,24 @@ def test_the_nearest_boundary_point_lies_at_the_footprints_distance(cx, cy, hx, 
         assert fp.distance(q)[0, 0] == pytest.approx(0.0, abs=1e-6)
     else:
         np.testing.assert_allclose(q, p, atol=1e-9)
+
+
+def test_a_graph_that_has_planned_to_a_goal_before_plans_the_same_paths():
+    """The per-goal cache of nodes that see the goal changes no path: every query on one reused graph equals the
+    same query on a fresh graph, across goals inside and outside the grown obstacles."""
+    rng = np.random.default_rng(3)
+    fp = Footprints(
+        rng.uniform(-30, 30, (8, 2)), rng.uniform(1, 5, (8, 2)), rng.uniform(-np.pi, np.pi, 8), rng.uniform(0, 1, 8)
+    )
+    bounds = np.array([[-50.0, -50.0], [50.0, 50.0]])
+    reused = VisibilityGraph(fp, clearance=1.5, bounds=bounds)
+    goals = [rng.uniform(-40, 40, 2) for _ in range(3)] + [fp.centers[0].copy()]  # the last inside an obstacle
+    for _ in range(30):
+        start, goal = rng.uniform(-40, 40, 2), goals[int(rng.integers(len(goals)))]
+        try:
+            expected = VisibilityGraph(fp, clearance=1.5, bounds=bounds).shortest_path(start, goal)
+        except NoPathError:
+            with pytest.raises(NoPathError):
+                reused.shortest_path(start, goal)
+            continue
+        np.testing.assert_array_equal(reused.shortest_path(start, goal), expected)
