@@ -240,8 +240,10 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
     for scene in sorted(report):
         for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
             r = report[scene][algo]
+            # (records from before the recipe was written down: the first recipe of each kind of agent)
+            recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
             lines.append(
-                f"| {scene} | {LABELS.get(algo, algo)} | {r.get('recipe', '')} | {r['episodes']} | "
+                f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {r['episodes']} | "
                 f"{100 * r['success']:.1f} % | "
                 f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
                 f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
