@@ -196,7 +196,7 @@ def main() -> None:
         runs = {}
         for agent in agents:
             if agent in RUN_FOLDERS:
-                recipes = {a: shipped_arm(scene, a)[0] for a in ("mddpg", "ddpg")}
+                recipes = {a: shipped_arm(scene, a).recipe for a in ("mddpg", "ddpg")}
                 run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
                 if (run / "eval.csv").exists():
                     runs[agent] = run

@@ -59,7 +59,7 @@ import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
-from training.config import SHIPPED_EVAL_EPISODES, SHIPPED_EVAL_EVERY, shipped_arm  # noqa: E402
+from training.config import shipped_arm  # noqa: E402
 
 HELD_OUT_SEED = 1000
 SB3_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
@@ -78,12 +78,12 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
     """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives."""
     if algo in ("mddpg", "ddpg"):
-        return out / f"{scene}-{shipped_arm(scene, algo)[0]}-seed{seed}"  # benchmarks/learning.py's folder
+        return out / f"{scene}-{shipped_arm(scene, algo).recipe}-seed{seed}"  # benchmarks/learning.py's folder
     return out / f"{scene}-{algo}-seed{seed}"
 
 
 def default_steps(scene: str, algo: str) -> int:
-    return shipped_arm(scene, algo)[1] if algo in ("mddpg", "ddpg") else SB3_STEPS.get(scene, 60_000)
+    return shipped_arm(scene, algo).steps if algo in ("mddpg", "ddpg") else SB3_STEPS.get(scene, 60_000)
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
@@ -94,11 +94,8 @@ def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[
         from training.config import TrainConfig, arm_config
         from training.loop import Trainer
 
-        recipe = shipped_arm(scene, algo)[0]
-        every, episodes = (
-            (SHIPPED_EVAL_EVERY, SHIPPED_EVAL_EPISODES) if recipe != f"tuned-{algo}" else (5_000, 50)
-        )
-        base = arm_config(recipe, scene, steps, seed, eval_every=every, eval_episodes=episodes)
+        arm = shipped_arm(scene, algo)
+        base = arm_config(arm.recipe, scene, steps, seed, eval_every=arm.eval_every, eval_episodes=arm.eval_episodes)
         cfg = TrainConfig.from_dict({**base.to_dict(), **fields})
         resume = (run / "checkpoint.pt").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
@@ -194,7 +191,7 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
-            "recipe": shipped_arm(scene, algo)[0] if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
+            "recipe": shipped_arm(scene, algo).recipe if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),

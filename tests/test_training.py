@@ -540,6 +540,12 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert (cfg.num_envs, cfg.updates_per_step) == (8, 0.125)
     assert cfg.scene_overrides == {"episode__mover_size": True, "episode__obstacle_shape": True}
     assert arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).num_envs == 8
+    from training.config import SHIPPED_RECIPES, shipped_arm
+
+    for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm
+        arm = shipped_arm(scene, "ddpg")
+        assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
+    assert shipped_arm("deck1", "mddpg") == ("tuned-mddpg-with-data+polish", 160_000, 20_000, 100)
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)

@@ -18,7 +18,7 @@ import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 TRAIN_SEED_BASE = 1_000_000
 ALGOS = ("mddpg", "ddpg")
@@ -166,8 +166,8 @@ class TrainConfig:
     """After the last environment step, fit a freshly initialised actor to the planner's action on every labelled
     transition of the replay buffer (demonstrations and relabelled agent states) for this many epochs: the cloning
     loss alone, minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. This is DAgger's
-    supervised step on the aggregated data; the online actor, updated at a constant rate with the Q term, fits it
-    less well. 0: off. A finished run can be polished later (``--resume --set polish_epochs=N``)."""
+    supervised step on the aggregated data (measured on deck 1 and 2: within the noise of one seed,
+    ``docs/training.md``). 0: off. A finished run can be polished later (``--resume --set polish_epochs=N``)."""
     polish_lr: float = 1e-3
     """Starting learning rate of the final cloning fit (``polish_epochs``)."""
     pretrain_updates: int = 0
@@ -340,25 +340,32 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 
-SHIPPED_RECIPES: dict[str, tuple[str, int]] = {
-    "deck1": ("tuned-{algo}-with-data+polish", 160_000),
-    "deck2": ("tuned-{algo}-with-data+polish", 160_000),
-    "square": ("tuned-{algo}", 40_000),
+class ShippedArm(NamedTuple):
+    """How a shipped MDDPG or DDPG actor was trained: ``arm_config(recipe, scene, steps, seed, eval_every,
+    eval_episodes)`` (``benchmarks/learning.py --steps --eval-every --eval-episodes``)."""
+
+    recipe: str
+    steps: int
+    eval_every: int = 5_000
+    eval_episodes: int = 50
+
+
+SHIPPED_RECIPES: dict[str, ShippedArm] = {
+    "deck1": ShippedArm("tuned-{algo}-with-data+polish", 160_000, 20_000, 100),
+    "deck2": ShippedArm("tuned-{algo}-with-data+polish", 160_000, 20_000, 100),
+    "square": ShippedArm("tuned-{algo}", 40_000),
 }
-"""Recipe (``{algo}``: ``mddpg`` or ``ddpg``) and training steps of the MDDPG and DDPG actors shipped for each scene
-(``scripts/train_shipped.py``). The decks' recipe collects four times the transitions per update of ``tuned``
+"""The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
+``scripts/train_shipped.py``). The decks' recipe collects four times the transitions per update of ``tuned``
 and ends with the cloning fit, 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on this
 machine; the square's actors have not been retrained with it yet."""
-SHIPPED_EVAL_EVERY, SHIPPED_EVAL_EPISODES = 20_000, 100
-"""Periodic held-out evaluations of the shipped recipe runs (``benchmarks/learning.py --eval-every 20000
---eval-episodes 100``); the ``tuned`` runs of the square used ``arm_config``'s 5,000 and 50."""
 
 
-def shipped_arm(scene: str, algo: str) -> tuple[str, int]:
-    """The recipe name and steps behind the shipped ``algo`` actor of ``scene`` (``tuned-<algo>`` and 60,000 steps
-    for a scene not in ``SHIPPED_RECIPES``)."""
-    recipe, steps = SHIPPED_RECIPES.get(scene, ("tuned-{algo}", 60_000))
-    return recipe.format(algo=algo), steps
+def shipped_arm(scene: str, algo: str) -> ShippedArm:
+    """The run behind the shipped ``algo`` actor of ``scene``, recipe name filled in (``tuned-<algo>`` for 60,000
+    steps for a scene not in ``SHIPPED_RECIPES``)."""
+    arm = SHIPPED_RECIPES.get(scene, ShippedArm("tuned-{algo}", 60_000))
+    return arm._replace(recipe=arm.recipe.format(algo=algo))
 
 
 def arm_config(
