@@ -127,16 +127,17 @@ def _shipped_agents() -> dict[str, dict[str, dict]]:
 
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
-    from deck_sim.policies import SHIPPED_ALGOS, shipped_policy_path
+    from deck_sim.policies import SHIPPED_ALGOS, policy_overrides, shipped_policy_path
 
     agents = _shipped_agents()[scene]
     assert set(agents) == set(SHIPPED_ALGOS)  # all four learned agents of the paper, measured and shipped
-    env = deck_sim.load(scene, seed=1000, episode__predictor="none")
     for algo, record in agents.items():
         if algo == "mddpg":  # acts with the MPC forecast: test_training.py's shipped-policy test
             continue
         path = shipped_policy_path(algo, scene)
         assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
+        # each actor's own observation (DDPG on deck 1 also observes the movers' sizes)
+        env = deck_sim.load(scene, seed=1000, **policy_overrides(algo, scene))
         policy = make_policy(algo, env)
         assert policy.predictor == "none" and policy.meta["scene"] == scene
         assert int(policy.meta["config"]["total_steps"]) == record["train_steps"]

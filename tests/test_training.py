@@ -473,11 +473,13 @@ def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_the_shipped_policies_load_and_act_on_their_scene(scene):
     import deck_sim
-    from deck_sim.policies import make_policy, shipped_policy_path
+    from deck_sim.policies import make_policy, policy_overrides, shipped_policy_path
 
     path = shipped_policy_path("mddpg", scene)
     assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
-    env = deck_sim.load(scene, seed=1000, episode__predictor="mpc")
+    overrides = policy_overrides("mddpg", scene)  # the actor's own observation options
+    assert overrides["episode__predictor"] == "mpc"
+    env = deck_sim.load(scene, seed=1000, **overrides)
     policy = make_policy("mddpg", env)
     assert policy.meta["scene"] == scene and policy.predictor == "mpc"
     ts = env.reset()
@@ -545,7 +547,7 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm
         arm = shipped_arm(scene, "ddpg")
         assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
-    assert shipped_arm("deck1", "mddpg") == ("tuned-mddpg-with-data+polish", 160_000, 20_000, 100)
+    assert shipped_arm("deck1", "mddpg") == ("tuned-mddpg-with-data+polish+size", 160_000, 20_000, 100)
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)
