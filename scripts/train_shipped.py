@@ -3,9 +3,10 @@
 For each scene and agent (``--algos``, default all four learned agents of the paper):
 
 - ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
-  ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks ``tuned-<algo>-with-data+polish``
-  for 160,000 steps) in ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py`` writes for
-  that arm). DDPG is MDDPG without prediction (predictor ``none``), same recipe and budget.
+  ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks
+  ``tuned-<algo>-with-data+polish`` for 160,000 steps, with ``+size`` on deck 1) in
+  ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py`` writes for that arm). DDPG is
+  MDDPG without prediction (predictor ``none``), same recipe and budget.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
   ``--out/<scene>-<algo>-seed<seed>``, held-out evaluation every 10,000 steps on 50 episodes; the networks are
   exported to numpy (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor
