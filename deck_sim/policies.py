@@ -185,16 +185,24 @@ class LearnedPolicy:
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
-        ``episode__mover_size`` for one trained on the movers' sizes and the ``episode__predicted_frame`` it was
-        trained with."""
+        ``episode__mover_size`` for one trained on the movers' sizes, and the ``episode__predicted_frame`` and
+        ``episode__near_steps`` it was trained with."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True
         if "dynamic_size" in self.keys:
             out["episode__mover_size"] = True
-        frame = dict(self.meta.get("scene_overrides") or {}).get("episode__predicted_frame")
+        trained = dict(self.meta.get("scene_overrides") or {})
+        frame = trained.get("episode__predicted_frame")
         if frame is not None:
             out["episode__predicted_frame"] = frame
+        if "target_near" in self.keys:
+            if "episode__near_steps" not in trained:
+                raise PolicyFileError(
+                    f"{self.source}: the actor reads 'target_near' but its meta record does not say which "
+                    "episode__near_steps it was trained with"
+                )
+            out["episode__near_steps"] = int(trained["episode__near_steps"])
         return out
 
     def reset(self) -> None:

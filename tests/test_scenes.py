@@ -84,6 +84,10 @@ def test_semantic_errors_are_named():
     data["reward"]["attraction_min"] = 5.0
     with pytest.raises(SceneSpecError, match=r"l <= L"):
         parse_scene(data)
+    data = _deck1()
+    data["episode"]["near_steps"] = -1
+    with pytest.raises(SceneSpecError, match=r"\[episode\]\.near_steps: must be >= 0, got -1"):
+        parse_scene(data)
 
 
 def test_overrides_apply_and_are_validated():

@@ -169,6 +169,36 @@ def test_mover_size_observation_follows_the_movers_order():
     assert lengths[-1] > 17.0 and lengths[0] < 5.0
 
 
+def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():
+    import deck_sim
+    from deck_sim.policies import ScriptedPolicy
+
+    assert "target_near" not in deck_sim.load("square", seed=4).observation_spec()  # off by default
+    env = deck_sim.load("square", seed=4, episode__near_steps=4)
+    near = 4 * env.task.spec.agent.reach  # 3 m on the square
+    (xmin, ymin), (xmax, ymax) = env.task.arena.bounds
+    policy = ScriptedPolicy(env)
+    ts, clipped, inside, at_edge = env.reset(), 0, 0, 0
+    while True:
+        obs = ts.observation
+        to_target, length = obs["target"], float(np.linalg.norm(obs["target"]))
+        if length > near:  # the same direction, clipped to the range
+            np.testing.assert_allclose(obs["target_near"], to_target * near / length)
+            clipped += 1
+        else:
+            np.testing.assert_allclose(obs["target_near"], to_target)
+            inside += 1
+        x, y = obs["position"]
+        np.testing.assert_allclose(obs["edge_near"], np.minimum([x - xmin, xmax - x, y - ymin, ymax - y], near))
+        at_edge += bool(np.any(obs["edge_near"] < near))
+        if ts.last():
+            break
+        ts = env.step(policy.act(obs))
+    # the planner walks to the cash machine, 1.5 m from the square's edge: every case was seen
+    assert env.task.last_info["reached_goal"]
+    assert clipped > 0 and inside > 0 and at_edge > 0
+
+
 def test_predicted_frame_mover_gives_each_movers_predicted_displacement():
     import deck_sim
 

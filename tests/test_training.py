@@ -609,9 +609,9 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
 
 
 def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_path):
-    from deck_sim.policies import LearnedPolicy
+    from deck_sim.policies import LearnedPolicy, PolicyFileError
 
-    overrides = {"episode__predicted_frame": "mover", "episode__mover_size": True}
+    overrides = {"episode__predicted_frame": "mover", "episode__mover_size": True, "episode__near_steps": 2}
     t = Trainer(
         _short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10, scene_overrides=overrides),
         tmp_path / "r",
@@ -620,4 +620,8 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     t.train()
     policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
     assert policy.scene_overrides == {"episode__predictor": "mpc", **overrides}
-    assert "dynamic_size" in policy.keys
+    assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
+    # an actor that reads the near features but does not say at which range cannot be given its observation
+    del policy.meta["scene_overrides"]["episode__near_steps"]
+    with pytest.raises(PolicyFileError, match="does not say which episode__near_steps"):
+        _ = policy.scene_overrides

@@ -328,6 +328,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "size": {"scene_overrides": {"episode__mover_size": True}},
     "polish": {"polish_epochs": 20},
     "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
+    "near": {"scene_overrides": {"episode__near_steps": 4}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -336,7 +337,8 @@ falls linearly from the recipe's 20 to 2 over the run, handing the actor from th
 environments at 0.125 updates per step, four times the relabelled states per update, for runs several times
 longer; ``size``: each mover's footprint size in the observation, scene field ``episode.mover_size``;
 ``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``;
-``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``). Several
+``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``;
+``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 
@@ -358,8 +360,9 @@ SHIPPED_RECIPES: dict[str, ShippedArm] = {
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
 ``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of
 ``tuned`` and ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on
-the decks, 44 min per run on the square (two runs sharing the cores, against 23-30 min for 40,000); on the decks the observation also carries
-each mover's footprint size (``size``), which the square's pedestrians, all 0.3 m discs, do not need."""
+the decks, 44-50 min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the
+decks the observation also carries each mover's footprint size (``size``), which the square's pedestrians, all
+0.3 m discs, do not need."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:

@@ -179,6 +179,13 @@ class EpisodeSpec:
     """Also observe each mover's size (``dynamic_size``, (n, 2), in the same order as ``dynamic_obstacles``): the
     half-length and half-width of its footprint, rounding radius included, metres (on deck 1: (9.15, 6.8) for the
     taxiing aircraft, (2.0, 1.0) for a tractor). Off by default (the paper's observation)."""
+    near_steps: int = 0
+    """Also observe, at a scale the far field does not swamp, what lies within ``near_steps`` decision periods'
+    reach (``near_steps * agent.reach`` metres): ``target_near`` (2), the target minus the agent with its length
+    clipped to that range, and ``edge_near`` (4), the agent's distance to the surface's west, east, south and
+    north edges, each clipped to it. An actor that reads ``target`` and ``position`` tens of metres wide after
+    normalisation cannot resolve the last metres before a goal next to an edge. 0 (default, the paper's
+    observation) leaves them out."""
 
 
 @dataclass(frozen=True)
@@ -329,6 +336,7 @@ def _validate(spec: SceneSpec, src: str) -> None:
     )
     _check(e.history >= 2, f"{src} [episode].history", f"must be >= 2, got {e.history}")
     _check(e.horizon >= 1, f"{src} [episode].horizon", f"must be >= 1, got {e.horizon}")
+    _check(e.near_steps >= 0, f"{src} [episode].near_steps", f"must be >= 0, got {e.near_steps}")
     if spec.paper_counts != (0, 0):
         _check(
             (s.count, m.count) == spec.paper_counts,

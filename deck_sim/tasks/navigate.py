@@ -14,7 +14,9 @@ Observation (all relative vectors in the world frame, metres; obstacles nearest 
     the last of m = 15 + 1) minus agent; ``dynamic_obstacles`` (n, 2) movers now minus agent; ``predicted``
     (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
     ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
-    position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw.
+    position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
+    the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``)
+    and the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``).
 """
 
 from __future__ import annotations
@@ -269,6 +271,8 @@ class Navigate(composer.Task):
             shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
         if self.spec.episode.mover_size:
             shapes["dynamic_size"] = (n, 2)
+        if self.spec.episode.near_steps > 0:
+            shapes.update({"target_near": (2,), "edge_near": (4,)})
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
         self._obs_shapes = shapes
         self._obs = {k: np.zeros(v) for k, v in shapes.items()}  # until the first episode starts
@@ -906,6 +910,14 @@ class Navigate(composer.Task):
             obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
         if self.spec.episode.mover_size:
             obs["dynamic_size"] = self._mover_size[order_m]
+        if self.spec.episode.near_steps > 0:
+            near = self.spec.episode.near_steps * self.spec.agent.reach
+            to_target = obs["target"]
+            length = math.hypot(float(to_target[0]), float(to_target[1]))
+            obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
+            (xmin, ymin), (xmax, ymax) = self._arena.bounds
+            edges = np.array([agent_xy[0] - xmin, xmax - agent_xy[0], agent_xy[1] - ymin, ymax - agent_xy[1]])
+            obs["edge_near"] = np.clip(edges, 0.0, near)
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
         obs["velocity"] = st["vel"][0]
