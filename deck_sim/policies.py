@@ -196,12 +196,9 @@ class LearnedPolicy:
         frame = trained.get("episode__predicted_frame")
         if frame is not None:
             out["episode__predicted_frame"] = frame
-        if "target_near" in self.keys:
-            if "episode__near_steps" not in trained:
-                raise PolicyFileError(
-                    f"{self.source}: the actor reads 'target_near' but its meta record does not say which "
-                    "episode__near_steps it was trained with"
-                )
+        # (an actor trained on a scene file that sets ``near_steps`` itself records no override: that file gives
+        # it its near field, and any other scene is refused by ``flatten``)
+        if "target_near" in self.keys and "episode__near_steps" in trained:
             out["episode__near_steps"] = int(trained["episode__near_steps"])
         return out
 

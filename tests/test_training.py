@@ -542,12 +542,16 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert (cfg.num_envs, cfg.updates_per_step) == (8, 0.125)
     assert cfg.scene_overrides == {"episode__mover_size": True, "episode__obstacle_shape": True}
     assert arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).num_envs == 8
+    near = arm_config("tuned-mddpg-with-data+polish+near", "square", steps=10_000, seed=0)
+    assert near.scene_overrides == {"episode__near_steps": 4} and near.polish_epochs == 20
     from training.config import SHIPPED_RECIPES, shipped_arm
 
     for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm
         arm = shipped_arm(scene, "ddpg")
         assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
     assert shipped_arm("deck1", "mddpg") == ("tuned-mddpg-with-data+polish+size", 160_000, 20_000, 100)
+    assert shipped_arm("deck2", "ddpg").recipe == "tuned-ddpg-with-data+polish+size"
+    assert shipped_arm("square", "mddpg") == ("tuned-mddpg-with-data+polish", 160_000, 20_000, 100)
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)
@@ -609,6 +613,7 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
 
 
 def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_path):
+    import deck_sim
     from deck_sim.policies import LearnedPolicy, PolicyFileError
 
     overrides = {"episode__predicted_frame": "mover", "episode__mover_size": True, "episode__near_steps": 2}
@@ -621,7 +626,9 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
     assert policy.scene_overrides == {"episode__predictor": "mpc", **overrides}
     assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
-    # an actor that reads the near features but does not say at which range cannot be given its observation
+    # an actor whose near field came from its scene file asks for no range; a scene without one is refused
     del policy.meta["scene_overrides"]["episode__near_steps"]
-    with pytest.raises(PolicyFileError, match="does not say which episode__near_steps"):
-        _ = policy.scene_overrides
+    assert "episode__near_steps" not in policy.scene_overrides
+    env = deck_sim.load("deck1", seed=0, **policy.scene_overrides)
+    with pytest.raises(PolicyFileError, match="needs observation 'target_near'"):
+        policy.flatten(env.reset().observation)
