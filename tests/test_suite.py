@@ -176,19 +176,21 @@ def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():
     assert "target_near" not in deck_sim.load("square", seed=4).observation_spec()  # off by default
     env = deck_sim.load("square", seed=4, episode__near_steps=4)
     near = 4 * env.task.spec.agent.reach  # 3 m on the square
-    (xmin, ymin), (xmax, ymax) = env.task.arena.bounds
     policy = ScriptedPolicy(env)
     ts, clipped, inside, at_edge = env.reset(), 0, 0, 0
     while True:
-        obs = ts.observation
-        to_target, length = obs["target"], float(np.linalg.norm(obs["target"]))
+        # expected values from the planner's full-knowledge view, not from the observation itself
+        obs, view = ts.observation, env.task.planner_view()
+        (xmin, ymin), (xmax, ymax) = view.bounds
+        to_target = view.target_xy - view.agent_xy
+        length = float(np.linalg.norm(to_target))
         if length > near:  # the same direction, clipped to the range
             np.testing.assert_allclose(obs["target_near"], to_target * near / length)
             clipped += 1
         else:
             np.testing.assert_allclose(obs["target_near"], to_target)
             inside += 1
-        x, y = obs["position"]
+        x, y = view.agent_xy
         np.testing.assert_allclose(obs["edge_near"], np.minimum([x - xmin, xmax - x, y - ymin, ymax - y], near))
         at_edge += bool(np.any(obs["edge_near"] < near))
         if ts.last():

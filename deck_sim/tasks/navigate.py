@@ -188,6 +188,7 @@ class Navigate(composer.Task):
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
         self._mover_size = self._mover_half + self._mover_radius_fp[:, None]
         self._predicted_from_agent = spec.episode.predicted_frame == "agent"
+        self._near = spec.episode.near_steps * spec.agent.reach  # metres of the near field; 0: not observed
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
@@ -271,7 +272,7 @@ class Navigate(composer.Task):
             shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
         if self.spec.episode.mover_size:
             shapes["dynamic_size"] = (n, 2)
-        if self.spec.episode.near_steps > 0:
+        if self._near > 0:
             shapes.update({"target_near": (2,), "edge_near": (4,)})
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
         self._obs_shapes = shapes
@@ -910,14 +911,12 @@ class Navigate(composer.Task):
             obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
         if self.spec.episode.mover_size:
             obs["dynamic_size"] = self._mover_size[order_m]
-        if self.spec.episode.near_steps > 0:
-            near = self.spec.episode.near_steps * self.spec.agent.reach
-            to_target = obs["target"]
+        if self._near > 0:
+            near, to_target = self._near, obs["target"]
             length = math.hypot(float(to_target[0]), float(to_target[1]))
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
-            (xmin, ymin), (xmax, ymax) = self._arena.bounds
-            edges = np.array([agent_xy[0] - xmin, xmax - agent_xy[0], agent_xy[1] - ymin, ymax - agent_xy[1]])
-            obs["edge_near"] = np.clip(edges, 0.0, near)
+            lo, hi = self._arena.bounds
+            obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
         obs["velocity"] = st["vel"][0]
