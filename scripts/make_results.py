@@ -198,8 +198,10 @@ def main() -> None:
             if agent in RUN_FOLDERS:
                 recipes = {a: shipped_arm(scene, a).recipe for a in ("mddpg", "ddpg")}
                 run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
-                if (run / "eval.csv").exists():
-                    runs[agent] = run
+                for folder in (run, TRAINED_DIR / "logs" / f"{scene}_{agent}"):  # the run, else its shipped log
+                    if (folder / "eval.csv").exists():
+                        runs[agent] = folder
+                        break
         if runs:
             png = plot_learning_curves(runs, figures / f"learning_{scene}.png", title=f"{scene}: average reward")
             curve_lines.append(f"![learning curves, {scene}](results/{png.name})")
@@ -210,9 +212,18 @@ def main() -> None:
                 with open(run / "eval.csv") as f:
                     episodes = sorted({r["episodes"] for r in csv.DictReader(f)})
                 stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
-                how.append(f"{agent}: `{run}/eval.csv`, {'/'.join(episodes)} episodes of {stream} per point")
+                shown = run.relative_to(ROOT) if run.is_absolute() and run.is_relative_to(ROOT) else run
+                how.append(f"{agent}: `{shown}/eval.csv`, {'/'.join(episodes)} episodes of {stream} per point")
             curve_lines.append(
                 f"*{scene}: held-out average reward and success against training steps ({'; '.join(how)}).*"
+            )
+            curve_lines.append("")
+        elif (figures / f"learning_{scene}.png").exists():  # logs gone (run folders are not committed): keep it
+            curve_lines.append(f"![learning curves, {scene}](results/learning_{scene}.png)")
+            curve_lines.append(
+                f"*{scene}: drawn by an earlier run of this script from the shipped actors' training logs, which this "
+                f"checkout does not hold (`git log docs/results/learning_{scene}.png` names the commit; "
+                "`scripts/train_shipped.py` now keeps each shipped run's log in `deck_sim/trained/logs/`).*"
             )
             curve_lines.append("")
     traj_lines = []

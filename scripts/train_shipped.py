@@ -22,8 +22,10 @@ actor with the best periodic held-out evaluation (seed-500 stream) is then measu
 held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a training,
 demonstration or selection episode), and copied to ``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few
 hundred KiB). The figures go to ``deck_sim/trained/results.json`` (``{scene: {algo: figures}}``) and
-``deck_sim/trained/README.md``, written by this script, never by hand. An agent already shipped and measured is
-skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files again without training).
+``deck_sim/trained/README.md``, written by this script, never by hand; the run's held-out evaluation log and
+config go to ``deck_sim/trained/logs/<scene>_<algo>/`` (the learning curves of ``docs/results.md``). An agent
+already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
+again without training).
 
 Order: agents whose runs are finished first, then the cheap SB3 runs, then the DDPG runs, so the files land
 incrementally; each is shipped as soon as it is measured. Several copies may run at once on disjoint work
@@ -74,6 +76,18 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
     policy = LearnedPolicy.load(actor)
     env = deck_sim.load(scene, seed=HELD_OUT_SEED, **policy.scene_overrides)  # its predictor and observation
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
+
+
+def ship_logs(run: Path, scene: str, algo: str) -> Path:
+    """Copy the run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
+    <scene>_<algo>/`` beside the shipped actor (a few KiB), so that ``scripts/make_results.py`` draws its learning
+    curve on a checkout without the run folder."""
+    logs = TRAINED_DIR / "logs" / f"{scene}_{algo}"
+    logs.mkdir(parents=True, exist_ok=True)
+    for name in ("eval.csv", "config.json"):
+        if (run / name).exists():
+            shutil.copyfile(run / name, logs / name)
+    return logs
 
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
@@ -176,6 +190,7 @@ def main() -> None:
             tmp = dest.with_name(dest.name + ".tmp")
             shutil.copyfile(run / "actor_best.npz", tmp)
             os.replace(tmp, dest)
+            ship_logs(run, scene, algo)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = LearnedPolicy.load(dest).meta
