@@ -194,7 +194,10 @@ def main() -> None:
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = LearnedPolicy.load(dest).meta
-        wall = _train_wall(run) if (run / "eval.csv").exists() else float("nan")
+        # the training time from the run's log, else from the log shipped with the actor, else as last recorded
+        # (``--evaluate-only`` on a checkout without the run folder must not lose it)
+        log = next((d for d in (run, TRAINED_DIR / "logs" / f"{scene}_{algo}") if (d / "eval.csv").exists()), None)
+        wall = _train_wall(log) if log else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
         record = {
             "algo": algo,
             "episodes": args.episodes,
