@@ -38,6 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
 import multiprocessing as mp  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -197,7 +198,12 @@ def main() -> None:
     overrides = shipped.scene_overrides
     bounds = deck_sim.load(args.scene, seed=0).task.arena.bounds
 
-    data = Path(args.data or f"runs/cloning/{args.scene}-{args.algo}-{args.states}.npz")
+    if "mirror" in variants:  # a key without a known reflection fails now, not after the first fits
+        mirror_map(shipped.keys, shipped.shapes, bounds)
+    # the cache is keyed on what the states depend on: the actor file and the collection settings
+    actor_id = hashlib.sha256(shipped_policy_path(args.algo, args.scene).read_bytes()).hexdigest()[:10]
+    name = f"{args.scene}-{args.algo}-{actor_id}-{args.states}-noise{args.noise}-teacher{args.teacher_share}.npz"
+    data = Path(args.data or f"runs/cloning/{name}")
     if data.exists():
         with np.load(data) as d:
             x, y = d["x"], d["y"]

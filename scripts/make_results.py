@@ -198,7 +198,8 @@ def main() -> None:
             if agent in RUN_FOLDERS:
                 recipes = {a: shipped_arm(scene, a).recipe for a in ("mddpg", "ddpg")}
                 run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
-                for folder in (run, TRAINED_DIR / "logs" / f"{scene}_{agent}"):  # the run, else its shipped log
+                # the log shipped with the actor (the run folder may hold a newer, unshipped run), else the run's
+                for folder in (TRAINED_DIR / "logs" / f"{scene}_{agent}", run):
                     if (folder / "eval.csv").exists():
                         runs[agent] = folder
                         break

@@ -83,8 +83,11 @@ def ship_logs(run: Path, scene: str, algo: str) -> Path:
     <scene>_<algo>/`` beside the shipped actor (a few KiB), so that ``scripts/make_results.py`` draws its learning
     curve on a checkout without the run folder."""
     logs = TRAINED_DIR / "logs" / f"{scene}_{algo}"
+    if not (run / "eval.csv").exists():
+        return logs
     logs.mkdir(parents=True, exist_ok=True)
     for name in ("eval.csv", "config.json"):
+        (logs / name).unlink(missing_ok=True)  # nothing of an earlier shipped run may stay beside the new log
         if (run / name).exists():
             shutil.copyfile(run / name, logs / name)
     return logs
@@ -194,9 +197,9 @@ def main() -> None:
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = LearnedPolicy.load(dest).meta
-        # the training time from the run's log, else from the log shipped with the actor, else as last recorded
-        # (``--evaluate-only`` on a checkout without the run folder must not lose it)
-        log = next((d for d in (run, TRAINED_DIR / "logs" / f"{scene}_{algo}") if (d / "eval.csv").exists()), None)
+        # the training time from the log shipped with the actor (a run folder may hold a newer, unshipped run),
+        # else from the run's log, else as last recorded (``--evaluate-only`` without the run folder keeps it)
+        log = next((d for d in (TRAINED_DIR / "logs" / f"{scene}_{algo}", run) if (d / "eval.csv").exists()), None)
         wall = _train_wall(log) if log else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
         record = {
             "algo": algo,
@@ -245,8 +248,9 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         "(`training.baselines`) exported to numpy. Each file is the actor of the run's best periodic evaluation",
         "(seed-500 episodes; with `polish`, the fitted actor is evaluated too). Held-out: consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
-        "(never a training, demonstration or model-selection episode). Training time: wall-clock on the machine",
-        "named in `results.json`, periodic evaluations included, while other work shared it.",
+        "(never a training, demonstration or model-selection episode). Training time: wall-clock of the run,",
+        "periodic evaluations included, while other work shared the machine; `machine` in `results.json` names",
+        "the machine of the held-out measurement, which `--evaluate-only` repeats without training.",
         "",
         "| scene | agent | recipe | held-out episodes | success | collision | timeout | left the deck | mean reward |"
         " path / straight | turning angle | training steps | training time |",

@@ -360,7 +360,7 @@ SHIPPED_RECIPES: dict[str, ShippedArm] = {
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
 ``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of
 ``tuned`` and ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on
-the decks, 44-50 min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the
+the decks, 46-48 min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the
 decks the observation also carries each mover's footprint size (``size``), which the square's pedestrians, all
 0.3 m discs, do not need; on the square it carries the target and the square's edges at a near scale (``near``),
 without which the walker, reading metres at the scale of a 100 m square, walked off it in 28.5 % (MDDPG) and
