@@ -263,6 +263,12 @@ def shipped_policy_path(algo: str, scene: str) -> Path:
     return path
 
 
+def shipped_log_dir(algo: str, scene: str) -> Path:
+    """Where the training log of the shipped ``algo`` actor of ``scene`` lies (``eval.csv``, ``config.json``;
+    ``scripts/train_shipped.py`` writes it, ``scripts/make_results.py`` draws its learning curve); it may not exist."""
+    return TRAINED_DIR / "logs" / f"{scene}_{algo}"
+
+
 def policy_file(name: str, scene: str) -> Path | None:
     """The actor file behind policy ``name`` on ``scene``: a shipped one, a path, or None for a reference policy."""
     if name in SHIPPED_ALGOS:

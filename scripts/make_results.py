@@ -30,7 +30,7 @@ from pathlib import Path  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
-from deck_sim.policies import TRAINED_DIR  # noqa: E402
+from deck_sim.policies import TRAINED_DIR, shipped_log_dir  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
 from training.config import shipped_arm  # noqa: E402
 from training.evaluate import (  # noqa: E402
@@ -199,7 +199,7 @@ def main() -> None:
                 recipes = {a: shipped_arm(scene, a).recipe for a in ("mddpg", "ddpg")}
                 run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
                 # the log shipped with the actor (the run folder may hold a newer, unshipped run), else the run's
-                for folder in (TRAINED_DIR / "logs" / f"{scene}_{agent}", run):
+                for folder in (shipped_log_dir(agent, scene), run):
                     if (folder / "eval.csv").exists():
                         runs[agent] = folder
                         break

@@ -60,7 +60,7 @@ from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
-from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy  # noqa: E402
+from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy, shipped_log_dir  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.config import shipped_arm  # noqa: E402
 
@@ -82,7 +82,7 @@ def ship_logs(run: Path, scene: str, algo: str) -> Path:
     """Copy the run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
     <scene>_<algo>/`` beside the shipped actor (a few KiB), so that ``scripts/make_results.py`` draws its learning
     curve on a checkout without the run folder."""
-    logs = TRAINED_DIR / "logs" / f"{scene}_{algo}"
+    logs = shipped_log_dir(algo, scene)
     if not (run / "eval.csv").exists():
         return logs
     logs.mkdir(parents=True, exist_ok=True)
@@ -199,7 +199,7 @@ def main() -> None:
         meta = LearnedPolicy.load(dest).meta
         # the training time from the log shipped with the actor (a run folder may hold a newer, unshipped run),
         # else from the run's log, else as last recorded (``--evaluate-only`` without the run folder keeps it)
-        log = next((d for d in (TRAINED_DIR / "logs" / f"{scene}_{algo}", run) if (d / "eval.csv").exists()), None)
+        log = next((d for d in (shipped_log_dir(algo, scene), run) if (d / "eval.csv").exists()), None)
         wall = _train_wall(log) if log else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
         record = {
             "algo": algo,
