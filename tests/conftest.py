@@ -1,4 +1,6 @@
-"""Test configuration: no rendering in the test process (render tests run the CLI in a subprocess)."""
+"""Test configuration: no rendering in the test process (render tests run the CLI in a subprocess), and the
+property tests' examples drawn from a fixed seed (hypothesis ``derandomize``), so that every run of the suite, CI's
+included, tries the same cases; ``HYPOTHESIS_PROFILE=explore`` draws new ones, to look for failures by hand."""
 
 import os
 
@@ -7,6 +9,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 SCENES = ("deck1", "deck2", "square")
 

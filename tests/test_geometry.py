@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, polyline_length
@@ -108,7 +108,7 @@ def test_the_enclosing_disc_prefilter_gives_the_exact_segment_test(seed):
     b = a + rng.normal(0, 25, (120, 2))
     b[:4] = a[:4]  # zero-length segments
     exact = segments_blocked(a, b, normals, offsets)
-    assert exact.any() and not exact.all()
+    assume(exact.any() and not exact.all())  # a layout that blocks no segment, or every one, tells nothing
     np.testing.assert_array_equal(segments_blocked(a, b, normals, offsets, bounds=(grown.centers, radii)), exact)
 
 
