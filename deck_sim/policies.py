@@ -51,8 +51,10 @@ class ScriptedPolicy:
         self.planner.reset()
 
     def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """Plan from the task's full state (the observation is not needed)."""
-        return self.planner.act(self._env.task.planner_view())
+        """Plan from the task's full state (the observation is not needed); the planner's world-frame action is
+        turned into the task's action frame (``episode.frame``)."""
+        task = self._env.task
+        return task.action_from_world(self.planner.act(task.planner_view()))
 
 
 class RandomPolicy:

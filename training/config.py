@@ -329,6 +329,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "polish": {"polish_epochs": 20},
     "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
     "near": {"scene_overrides": {"episode__near_steps": 4}},
+    "ego": {"scene_overrides": {"episode__frame": "agent"}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -338,7 +339,8 @@ environments at 0.125 updates per step, four times the relabelled states per upd
 longer; ``size``: each mover's footprint size in the observation, scene field ``episode.mover_size``;
 ``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``;
 ``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``;
-``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``). Several
+``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``; ``ego``: the
+observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

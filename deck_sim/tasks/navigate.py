@@ -9,7 +9,8 @@ One control step (``control_period``, 0.5 s by default):
        times to look for contacts between the agent and obstacles
     -> history of the movers' positions -> predictor -> observation (paper eq. 7-8) and reward (eq. 10-16).
 
-Observation (all relative vectors in the world frame, metres; obstacles nearest first):
+Observation (all relative vectors in the world frame, metres, or in the agent's own with ``episode.frame =
+"agent"``; obstacles nearest first):
     ``target`` (2) target minus agent; ``static_obstacles`` (m, 2) static obstacles (on the deck the island is
     the last of m = 15 + 1) minus agent; ``dynamic_obstacles`` (n, 2) movers now minus agent; ``predicted``
     (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
@@ -62,6 +63,20 @@ _NO_SENSORS = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
 
 class LayoutError(RuntimeError):
     """The episode's layout could not be sampled (rejection sampling ran out of attempts)."""
+
+
+_TURNED_KEYS = (
+    "target",
+    "static_obstacles",
+    "dynamic_obstacles",
+    "predicted",
+    "static_nearest",
+    "dynamic_nearest",
+    "dynamic_heading",
+    "target_near",
+)
+"""Observation keys holding world vectors (..., 2) that ``episode.frame = "agent"`` turns into the agent's axes
+(``velocity`` too, read from the state)."""
 
 
 class InvalidActionError(ValueError):
@@ -189,6 +204,7 @@ class Navigate(composer.Task):
         self._mover_size = self._mover_half + self._mover_radius_fp[:, None]
         self._predicted_from_agent = spec.episode.predicted_frame == "agent"
         self._near = spec.episode.near_steps * spec.agent.reach  # metres of the near field; 0: not observed
+        self._agent_frame = spec.episode.frame == "agent"  # observation and action in the agent's axes
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
@@ -621,6 +637,10 @@ class Navigate(composer.Task):
         spec, d, st = self.spec, self._d, self._state
         period = spec.episode.control_period
         self._last_action = action
+        if self._agent_frame:  # ahead and to the left -> the world's axes
+            c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
+            a0, a1 = c * a0 - s * a1, s * a0 + c * a1
+            action = np.array([a0, a1])
         if isinstance(self._agent, Aircraft):
             reach = spec.agent.reach
             cmd = track_displacement(
@@ -917,9 +937,18 @@ class Navigate(composer.Task):
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
             lo, hi = self._arena.bounds
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
+        if self._agent_frame:
+            # turn every relative vector by minus the yaw: world (x, y) -> (c x + s y, -s x + c y)
+            c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
+            turn = np.array([[c, -s], [s, c]])
+            for key in _TURNED_KEYS:
+                if key in obs:
+                    obs[key] = obs[key] @ turn
+            obs["velocity"] = st["vel"][0] @ turn
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
-        obs["velocity"] = st["vel"][0]
+        if not self._agent_frame:
+            obs["velocity"] = st["vel"][0]
         yaw = float(st["yaw"][0])
         obs["heading"] = np.array([math.cos(yaw), math.sin(yaw)])
         self._obs = obs
@@ -948,6 +977,20 @@ class Navigate(composer.Task):
             "mover_yaw": st["yaw"][1:].copy(),
             "prediction": self._prediction.positions.copy(),
         }
+
+    def action_from_world(self, action: np.ndarray) -> np.ndarray:
+        """A world-frame action (2,) in this task's action frame (``episode.frame``), clipped to [-1, 1]^2.
+
+        Identity in the world frame; in the agent frame it is turned by minus the agent's current yaw, which is
+        exact (no clipping) for actions in the unit disc, as every planner's are. The scripted and classical
+        planners plan in the world and go through this (``policies.ScriptedPolicy``)."""
+        action = np.asarray(action, dtype=np.float64)
+        if not self._agent_frame:
+            return action
+        yaw = float(self._state["yaw"][0])
+        c, s = math.cos(yaw), math.sin(yaw)
+        x, y = float(action[0]), float(action[1])
+        return np.clip(np.array([c * x + s * y, -s * x + c * y]), -1.0, 1.0)
 
     def planner_view(self) -> PlannerView:
         """Full knowledge of the current step for the scripted planner."""
