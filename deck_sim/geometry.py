@@ -13,6 +13,7 @@ against every octagon with Cyrus-Beck clipping. The result is the shortest polyl
 from __future__ import annotations
 
 import heapq
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,19 @@ def rotation(yaw: np.ndarray) -> np.ndarray:
     """(k, 2, 2) rotation matrices for yaws (k,) in radians."""
     c, s = np.cos(yaw), np.sin(yaw)
     return np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
+
+
+def world_to_agent(vectors: np.ndarray, yaw: float) -> np.ndarray:
+    """Vectors (..., 2) given in the world's axes, in the axes of an agent heading ``yaw`` radians (x ahead, y to
+    its left): each is turned by minus the yaw; lengths are kept."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.asarray(vectors, dtype=np.float64) @ np.array([[c, -s], [s, c]])
+
+
+def agent_to_world(vectors: np.ndarray, yaw: float) -> np.ndarray:
+    """The inverse of ``world_to_agent``: vectors (..., 2) in the agent's axes, in the world's."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.asarray(vectors, dtype=np.float64) @ np.array([[c, s], [-s, c]])
 
 
 @dataclass(frozen=True)

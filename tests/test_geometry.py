@@ -145,3 +145,22 @@ def test_a_graph_that_has_planned_to_a_goal_before_plans_the_same_paths():
                 reused.shortest_path(start, goal)
             continue
         np.testing.assert_array_equal(reused.shortest_path(start, goal), expected)
+
+
+@given(
+    st.floats(-10.0, 10.0),
+    st.lists(st.floats(-50.0, 50.0), min_size=2, max_size=2),
+)
+def test_agent_axes_turn_vectors_and_back_keeping_their_length(yaw, xy):
+    from deck_sim.geometry import agent_to_world, world_to_agent
+
+    v = np.array(xy)
+    local = world_to_agent(v, yaw)
+    np.testing.assert_allclose(np.linalg.norm(local), np.linalg.norm(v), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(agent_to_world(local, yaw), v, atol=1e-12)
+    # the heading itself is straight ahead, the direction 90 degrees to its left is +y
+    np.testing.assert_allclose(world_to_agent(np.array([np.cos(yaw), np.sin(yaw)]), yaw), [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(world_to_agent(np.array([-np.sin(yaw), np.cos(yaw)]), yaw), [0.0, 1.0], atol=1e-12)
+    # rows of an (n, k, 2) array turn alike
+    stack = np.tile(v, (3, 4, 1))
+    np.testing.assert_allclose(world_to_agent(stack, yaw), np.tile(local, (3, 4, 1)), atol=1e-12)

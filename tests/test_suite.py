@@ -218,3 +218,48 @@ def test_predicted_frame_mover_gives_each_movers_predicted_displacement():
     )
     with pytest.raises(deck_sim.SceneSpecError, match="predicted_frame"):
         deck_sim.load("deck1", episode__predicted_frame="target")
+
+
+def test_agent_frame_turns_the_observation_and_the_action_into_the_agents_axes():
+    from deck_sim.geometry import world_to_agent
+
+    kw = {"seed": 4, "episode__obstacle_shape": True, "episode__mover_size": True}
+    world = deck_sim.load("deck1", **kw)
+    agent = deck_sim.load("deck1", episode__frame="agent", **kw)
+    assert world.observation_spec() == agent.observation_spec()
+    w, a = world.reset(), agent.reset()
+    start = world.task.last_info["position"].copy()
+    for step in range(12):
+        ow, oa = w.observation, a.observation
+        yaw = float(np.arctan2(ow["heading"][1], ow["heading"][0]))
+        for key in ow:
+            if key in ("position", "heading", "dynamic_size"):
+                np.testing.assert_allclose(oa[key], ow[key], atol=1e-9, err_msg=key)
+            else:  # every vector turned by minus the yaw, lengths kept
+                np.testing.assert_allclose(oa[key], world_to_agent(ow[key], yaw), atol=1e-9, err_msg=key)
+        # ahead and to one side, asked for in each env's own axes (the world one turned by hand)
+        x, y = 0.9, 0.3 * (-1) ** (step // 4)
+        c, s = np.cos(yaw), np.sin(yaw)
+        w = world.step(np.clip(np.array([c * x - s * y, s * x + c * y]), -1.0, 1.0))
+        a = agent.step(np.array([x, y]))
+        np.testing.assert_allclose(agent.task.last_info["position"], world.task.last_info["position"], atol=1e-6)
+    moved = agent.task.last_info["position"] - start
+    assert np.linalg.norm(moved) > 5.0  # it drove; an aircraft does not slide sideways: its velocity is ahead
+    assert a.observation["velocity"][0] > 1.0 and abs(a.observation["velocity"][1]) < 0.2 * a.observation["velocity"][0]
+    # a planner's world action, turned into the agent's axes
+    yaw = agent.task.last_info["heading"]
+    np.testing.assert_allclose(agent.task.action_from_world(np.array([0.0, 0.8])), world_to_agent([0.0, 0.8], yaw))
+    np.testing.assert_array_equal(world.task.action_from_world(np.array([0.0, 0.8])), [0.0, 0.8])
+    with pytest.raises(deck_sim.SceneSpecError, match="frame"):
+        deck_sim.load("deck1", episode__frame="body")
+
+
+def test_the_scripted_planner_drives_the_same_path_in_either_frame():
+    from deck_sim.policies import ScriptedPolicy
+    from deck_sim.rollout import run_episode
+
+    world = deck_sim.load("deck1", seed=3, episode__predictor="constant_velocity")
+    agent = deck_sim.load("deck1", seed=3, episode__predictor="constant_velocity", episode__frame="agent")
+    rw, ra = run_episode(world, ScriptedPolicy(world)), run_episode(agent, ScriptedPolicy(agent))
+    assert rw.outcome == ra.outcome == "goal" and rw.steps == ra.steps
+    assert ra.path_length == pytest.approx(rw.path_length, abs=1e-6)

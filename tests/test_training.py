@@ -544,6 +544,8 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).num_envs == 8
     near = arm_config("tuned-mddpg-with-data+polish+near", "square", steps=10_000, seed=0)
     assert near.scene_overrides == {"episode__near_steps": 4} and near.polish_epochs == 20
+    ego = arm_config("tuned-ddpg-with-data+polish+size+ego", "deck1", steps=10_000, seed=0)
+    assert ego.scene_overrides == {"episode__mover_size": True, "episode__frame": "agent"}
     from training.config import SHIPPED_RECIPES, shipped_arm
 
     for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm

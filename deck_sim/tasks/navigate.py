@@ -43,7 +43,7 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, VisibilityGraph
+from deck_sim.geometry import Footprints, VisibilityGraph, world_to_agent
 from deck_sim.scenes import SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
@@ -939,12 +939,11 @@ class Navigate(composer.Task):
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
         if self._agent_frame:
             # turn every relative vector by minus the yaw: world (x, y) -> (c x + s y, -s x + c y)
-            c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
-            turn = np.array([[c, -s], [s, c]])
+            yaw = float(st["yaw"][0])
             for key in _TURNED_KEYS:
                 if key in obs:
-                    obs[key] = obs[key] @ turn
-            obs["velocity"] = st["vel"][0] @ turn
+                    obs[key] = world_to_agent(obs[key], yaw)
+            obs["velocity"] = world_to_agent(st["vel"][0], yaw)
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
         if not self._agent_frame:
@@ -987,10 +986,7 @@ class Navigate(composer.Task):
         action = np.asarray(action, dtype=np.float64)
         if not self._agent_frame:
             return action
-        yaw = float(self._state["yaw"][0])
-        c, s = math.cos(yaw), math.sin(yaw)
-        x, y = float(action[0]), float(action[1])
-        return np.clip(np.array([c * x + s * y, -s * x + c * y]), -1.0, 1.0)
+        return np.clip(world_to_agent(action, float(self._state["yaw"][0])), -1.0, 1.0)
 
     def planner_view(self) -> PlannerView:
         """Full knowledge of the current step for the scripted planner."""
