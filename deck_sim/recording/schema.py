@@ -77,7 +77,10 @@ STATE_SCHEMA: dict[str, Any] = {
         "y": {"type": "number", "description": "agent position y, m (float64, exact)"},
         "heading": {"type": "number", "description": "agent yaw, rad"},
         "speed": {"type": "number", "description": "agent forward speed, m/s"},
-        "action_x": {"type": ["number", "null"], "description": "action x in [-1, 1] (null at the reset)"},
+        "action_x": {
+            "type": ["number", "null"],
+            "description": "action x in [-1, 1], in the axes of the episode.frame metadata (null at the reset)",
+        },
         "action_y": {"type": ["number", "null"], "description": "action y in [-1, 1] (null at the reset)"},
         "r1": {"type": "number", "description": "target attraction (eq. 10-12)"},
         "r2": {"type": "number", "description": "obstacle repulsion (eq. 13-14)"},
