@@ -618,7 +618,12 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     import deck_sim
     from deck_sim.policies import LearnedPolicy, PolicyFileError
 
-    overrides = {"episode__predicted_frame": "mover", "episode__mover_size": True, "episode__near_steps": 2}
+    overrides = {
+        "episode__predicted_frame": "mover",
+        "episode__mover_size": True,
+        "episode__near_steps": 2,
+        "episode__frame": "agent",  # the same keys and shapes as the deck's axes: only the record tells them apart
+    }
     t = Trainer(
         _short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10, scene_overrides=overrides),
         tmp_path / "r",
