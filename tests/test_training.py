@@ -602,6 +602,40 @@ def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_
             make_config(polish_epochs=bad)
 
 
+def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_path):
+    """``polish_hidden``: the final fit trains a fresh actor of other widths (the critic keeps ``hidden``); the
+    exported file has those widths and acts; the polished run resumes with that actor; a finished run can be
+    given the wider fit later, and not twice."""
+    import deck_sim
+    from deck_sim.policies import LearnedPolicy
+
+    cfg = _short(polish_epochs=5, polish_hidden=(24, 16, 8))
+    wide = Trainer(cfg, tmp_path / "wide", progress=False)
+    wide.train()
+    with np.load(tmp_path / "wide" / "actor.npz") as f:
+        assert [f[f"w{i}"].shape for i in range(4)] == [(24, wide.obs_dim), (16, 24), (8, 16), (2, 8)]
+        assert "w4" not in f.files
+    policy = LearnedPolicy.load(tmp_path / "wide" / "actor.npz")
+    env = deck_sim.load("deck1", seed=0, **policy.scene_overrides)
+    action = policy.act(env.reset().observation)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    again = Trainer(cfg, tmp_path / "wide", resume=True, progress=False)
+    again.train()  # restores the polished checkpoint into an actor of the fit's widths
+    for a, b in zip(wide.agent.actor.parameters(), again.agent.actor.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    # a finished, unpolished run given the wider fit later: the same actor as asking for it from the start
+    Trainer(_short(), tmp_path / "later", progress=False).train()
+    Trainer(cfg, tmp_path / "later", resume=True, progress=False).train()
+    with np.load(tmp_path / "wide" / "actor.npz") as a, np.load(tmp_path / "later" / "actor.npz") as b:
+        for k in a.files:
+            if k != "meta":
+                np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    with pytest.raises(CheckpointError, match="polished with polish_hidden"):
+        Trainer(_short(polish_epochs=5, polish_hidden=(32,)), tmp_path / "later", resume=True, progress=False).train()
+    with pytest.raises(ConfigError, match="polish_hidden"):
+        make_config(polish_hidden=(0, 8))
+
+
 def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
     from training.cli import main
 
@@ -609,7 +643,7 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
     Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0), out, progress=False).train()
     base = ["train", "--algo", "mddpg", "--out", str(out), "--resume", "--quiet"]
     assert main([*base, "--set", "gamma=0.5"]) == 2
-    assert "may change only total_steps, polish_epochs, polish_lr, not gamma" in capsys.readouterr().err
+    assert "may change only total_steps, polish_epochs, polish_lr, polish_hidden, not gamma" in capsys.readouterr().err
     assert main([*base, "--set", "polish_epochs=2"]) == 0
     assert load_checkpoint(out / "checkpoint.pt")["polished"] is True
 

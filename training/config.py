@@ -170,6 +170,10 @@ class TrainConfig:
     ``docs/training.md``). 0: off. A finished run can be polished later (``--resume --set polish_epochs=N``)."""
     polish_lr: float = 1e-3
     """Starting learning rate of the final cloning fit (``polish_epochs``)."""
+    polish_hidden: tuple[int, ...] = ()
+    """Hidden layer widths of the actor the final cloning fit trains (empty: ``hidden``, the online actor's). A
+    wider fit matches the planner's labels more closely (``benchmarks/cloning.py``); the exported actor then has
+    these widths, and the critic keeps ``hidden``."""
     pretrain_updates: int = 0
     """Updates on the demonstrations alone before any interaction (DQfD's pre-training phase): the critic learns
     their TD targets, the actor clones them (no Q term: a critic that has seen only demonstrations cannot yet
@@ -232,6 +236,8 @@ class TrainConfig:
                 raise ConfigError(f"{name}: must be positive, got {getattr(self, name)!r}")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise ConfigError(f"hidden: expected positive layer widths, got {self.hidden!r}")
+        if any(int(h) < 1 for h in self.polish_hidden):
+            raise ConfigError(f"polish_hidden: expected positive layer widths (or none), got {self.polish_hidden!r}")
         last = 0.0
         for i, stage in enumerate(self.curriculum):
             if not last < stage.until <= 1.0:
@@ -245,6 +251,7 @@ class TrainConfig:
         """A JSON-serialisable copy."""
         d = dataclasses.asdict(self)
         d["hidden"] = list(self.hidden)
+        d["polish_hidden"] = list(self.polish_hidden)
         return d
 
     @classmethod
@@ -255,8 +262,9 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
         d = dict(d)
-        if "hidden" in d:
-            d["hidden"] = tuple(int(h) for h in d["hidden"])
+        for key in ("hidden", "polish_hidden"):
+            if key in d:
+                d[key] = tuple(int(h) for h in d[key])
         if "curriculum" in d:
             d["curriculum"] = tuple(
                 s if isinstance(s, CurriculumStage) else CurriculumStage(**s) for s in d["curriculum"]
@@ -330,6 +338,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
     "near": {"scene_overrides": {"episode__near_steps": 4}},
     "ego": {"scene_overrides": {"episode__frame": "agent"}},
+    "widepolish": {"polish_epochs": 40, "polish_hidden": (512, 512, 512)},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -340,7 +349,8 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 ``polish``: 20 epochs of pure cloning on the whole buffer after the last step, ``polish_epochs``;
 ``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``;
 ``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``; ``ego``: the
-observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``). Several
+observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``; ``widepolish``: the
+final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

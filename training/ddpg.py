@@ -160,9 +160,12 @@ class DDPGAgent:
         from ``generator``; the normaliser stays as it is. Returns the mean squared error (summed over action
         components) of each epoch."""
         cfg = self.config
+        widths = tuple(cfg.polish_hidden) or tuple(cfg.hidden)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(torch.randint(2**31 - 1, (1,), generator=generator)))
-            fresh = Actor(self.obs_dim, self.act_dim, tuple(cfg.hidden))
+            fresh = Actor(self.obs_dim, self.act_dim, widths)
+        if widths != tuple(cfg.hidden):
+            self.set_actor_widths(widths)
         self.actor.load_state_dict(fresh.state_dict())
         x = self.norm(torch.as_tensor(obs, dtype=torch.float32))
         y = torch.as_tensor(target, dtype=torch.float32)
@@ -187,6 +190,16 @@ class DDPGAgent:
             losses.append(total / per_epoch)
         self.actor_target.load_state_dict(self.actor.state_dict())
         return losses
+
+    def set_actor_widths(self, widths: tuple[int, ...]) -> None:
+        """Replace the actor, its target and its optimiser by ones with hidden ``widths`` (freshly initialised):
+        the final fit's own actor (``config.polish_hidden``); the critic is left as it is."""
+        cfg = self.config
+        self.actor = Actor(self.obs_dim, self.act_dim, tuple(widths))
+        self.actor_target = copy.deepcopy(self.actor)
+        for p in self.actor_target.parameters():
+            p.requires_grad_(False)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
 
     # -- state ----------------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, object]:

@@ -95,7 +95,7 @@ def eval_row(step: int, wall: float, summary: dict[str, float], polished: bool =
     }
 
 
-RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr")
+RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden")
 """Config fields a resumed run may change: a longer run, or a final cloning fit added to a finished one."""
 
 
@@ -239,11 +239,13 @@ class Trainer:
                 f"{self.run_dir} was polished at step {self.step} (polish_epochs): it cannot be extended to {end} "
                 "steps; train a new run with more steps instead"
             )
-        for k in ("polish_epochs", "polish_lr"):
+        for k in ("polish_epochs", "polish_lr", "polish_hidden"):
             default = getattr(TrainConfig(), k)
-            if saved.get(k, default) != getattr(self.config, k):
+            value = saved.get(k, default)
+            value = tuple(value) if k == "polish_hidden" else value  # (a list in the saved JSON)
+            if value != getattr(self.config, k):
                 raise CheckpointError(
-                    f"{self.run_dir} was polished with {k} = {saved.get(k, default)!r}; it cannot be polished again "
+                    f"{self.run_dir} was polished with {k} = {value!r}; it cannot be polished again "
                     f"with {getattr(self.config, k)!r}"
                 )
 
@@ -603,6 +605,10 @@ class Trainer:
 
     def _restore(self, state: dict[str, Any]) -> None:
         try:
+            # a polished checkpoint holds the fit's actor, of the widths its own config gave the fit
+            widths = tuple(int(h) for h in (state["config"].get("polish_hidden") or ()))
+            if state.get("polished", False) and widths:
+                self.agent.set_actor_widths(widths)
             self.agent.load_state_dict(state["agent"])
             self.buffer.load_state_dict(state["buffer"])
             self.noise.load_state_dict(state["noise"])
