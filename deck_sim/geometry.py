@@ -13,7 +13,6 @@ against every octagon with Cyrus-Beck clipping. The result is the shortest polyl
 from __future__ import annotations
 
 import heapq
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,15 +38,13 @@ def rotation(yaw: np.ndarray) -> np.ndarray:
 
 def world_to_agent(vectors: np.ndarray, yaw: float) -> np.ndarray:
     """Vectors (..., 2) given in the world's axes, in the axes of an agent heading ``yaw`` radians (x ahead, y to
-    its left): each is turned by minus the yaw; lengths are kept."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.asarray(vectors, dtype=np.float64) @ np.array([[c, -s], [s, c]])
+    its left): each is turned by minus the yaw (row vectors times ``rotation(yaw)``); lengths are kept."""
+    return np.asarray(vectors, dtype=np.float64) @ rotation(np.float64(yaw))
 
 
 def agent_to_world(vectors: np.ndarray, yaw: float) -> np.ndarray:
     """The inverse of ``world_to_agent``: vectors (..., 2) in the agent's axes, in the world's."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.asarray(vectors, dtype=np.float64) @ np.array([[c, s], [-s, c]])
+    return np.asarray(vectors, dtype=np.float64) @ rotation(np.float64(yaw)).T
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ import numpy as np
 from dm_control import composer
 
 from deck_sim.control.planners import APFPlanner, AStarPlanner, MPCPlanner, ScriptedPlanner
+from deck_sim.scenes import POLICY_EPISODE_FIELDS
 
 
 class Policy(Protocol):
@@ -187,19 +188,18 @@ class LearnedPolicy:
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
-        ``episode__mover_size`` for one trained on the movers' sizes, and the ``episode__predicted_frame``,
-        ``episode__frame`` and ``episode__near_steps`` it was trained with."""
+        ``episode__mover_size`` for one trained on the movers' sizes, the ``episode__near_steps`` it was trained
+        with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its training overrode (the observation's keys and
+        shapes cannot tell those)."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True
         if "dynamic_size" in self.keys:
             out["episode__mover_size"] = True
         trained = dict(self.meta.get("scene_overrides") or {})
-        # the axes of the observation and action (``episode__frame``): the keys and shapes are the same in either,
-        # so nothing but this record can tell an actor trained in the agent's axes from one in the deck's
-        for field in ("episode__predicted_frame", "episode__frame"):
-            if trained.get(field) is not None:
-                out[field] = trained[field]
+        for field in POLICY_EPISODE_FIELDS:
+            if trained.get(f"episode__{field}") is not None:
+                out[f"episode__{field}"] = trained[f"episode__{field}"]
         # (an actor trained on a scene file that sets ``near_steps`` itself records no override: that file gives
         # it its near field, and any other scene is refused by ``flatten``)
         if "target_near" in self.keys and "episode__near_steps" in trained:

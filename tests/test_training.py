@@ -666,6 +666,12 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     t.train()
     policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
     assert policy.scene_overrides == {"episode__predictor": "mpc", **overrides}
+    # every field that changes what an observation or action means without changing a shape is carried over
+    policy.meta["scene_overrides"]["episode__control_period"] = 0.4
+    assert policy.scene_overrides["episode__control_period"] == 0.4
+    policy.meta["scene_overrides"]["episode__time_limit"] = 30.0  # the task's, not the actor's: not carried
+    assert "episode__time_limit" not in policy.scene_overrides
+    del policy.meta["scene_overrides"]["episode__control_period"], policy.meta["scene_overrides"]["episode__time_limit"]
     assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
     # an actor whose near field came from its scene file asks for no range; a scene without one is refused
     del policy.meta["scene_overrides"]["episode__near_steps"]

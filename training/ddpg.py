@@ -154,7 +154,8 @@ class DDPGAgent:
         return {"actor_loss": actor_loss.item(), "bc_loss": bc_loss.item(), "bc_share": share}
 
     def polish(self, obs: np.ndarray, target: np.ndarray, epochs: int, generator: torch.Generator) -> list[float]:
-        """Fit a freshly initialised actor to ``target`` actions (n, act_dim) for raw observations ``obs``
+        """Fit a freshly initialised actor (of ``config.polish_hidden`` widths, or ``hidden`` if that is empty;
+        ``set_actor_widths``) to ``target`` actions (n, act_dim) for raw observations ``obs``
         (n, obs_dim) by the cloning loss alone (``config.polish_epochs``): ``epochs`` shuffled passes in
         minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. The initial weights come
         from ``generator``; the normaliser stays as it is. Returns the mean squared error (summed over action

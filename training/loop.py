@@ -220,12 +220,18 @@ class Trainer:
         self._t_start = time.perf_counter()
 
     # -- configuration checks ----------------------------------------------------------------------------------
+    @staticmethod
+    def _comparable(saved: dict[str, Any]) -> dict[str, Any]:
+        """A checkpoint's config in ``to_dict`` form (fields added since it was written take their defaults, as a
+        resumed config does), or as saved where it no longer parses (its difference is then named as it stands)."""
+        try:
+            return TrainConfig.from_dict(saved).to_dict()
+        except (ConfigError, TypeError, ValueError):
+            return saved
+
     def _check_compatible(self, saved: dict[str, Any]) -> None:
         mine = self.config.to_dict()
-        try:  # fields added since the checkpoint was written take their defaults, as a resumed config does
-            saved = TrainConfig.from_dict(saved).to_dict()
-        except (ConfigError, TypeError, ValueError):
-            pass  # compared as saved: the difference is named below
+        saved = self._comparable(saved)
         diff = [k for k in sorted(set(mine) | set(saved)) if k not in RESUMABLE_CHANGES and mine.get(k) != saved.get(k)]
         if diff:
             detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, now {mine.get(k)!r}" for k in diff[:5])
@@ -239,14 +245,12 @@ class Trainer:
                 f"{self.run_dir} was polished at step {self.step} (polish_epochs): it cannot be extended to {end} "
                 "steps; train a new run with more steps instead"
             )
+        mine, saved, default = self.config.to_dict(), self._comparable(saved), TrainConfig().to_dict()
         for k in ("polish_epochs", "polish_lr", "polish_hidden"):
-            default = getattr(TrainConfig(), k)
-            value = saved.get(k, default)
-            value = tuple(value) if k == "polish_hidden" else value  # (a list in the saved JSON)
-            if value != getattr(self.config, k):
+            value = saved.get(k, default[k])
+            if value != mine[k]:
                 raise CheckpointError(
-                    f"{self.run_dir} was polished with {k} = {value!r}; it cannot be polished again "
-                    f"with {getattr(self.config, k)!r}"
+                    f"{self.run_dir} was polished with {k} = {value!r}; it cannot be polished again with {mine[k]!r}"
                 )
 
     # -- curriculum and environments ---------------------------------------------------------------------------
@@ -606,7 +610,7 @@ class Trainer:
     def _restore(self, state: dict[str, Any]) -> None:
         try:
             # a polished checkpoint holds the fit's actor, of the widths its own config gave the fit
-            widths = tuple(int(h) for h in (state["config"].get("polish_hidden") or ()))
+            widths = tuple(self._comparable(state["config"]).get("polish_hidden") or ())
             if state.get("polished", False) and widths:
                 self.agent.set_actor_widths(widths)
             self.agent.load_state_dict(state["agent"])

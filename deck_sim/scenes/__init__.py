@@ -197,6 +197,13 @@ class EpisodeSpec:
     observation) leaves them out."""
 
 
+POLICY_EPISODE_FIELDS = ("predicted_frame", "frame", "control_period", "history")
+"""``[episode]`` fields that change what an observation or an action means without changing any observation's key
+or shape (a forecast's origin, the axes, the decision period an action's displacement spans, the past positions
+the predictor reads): a trained actor must act with the values it was trained with, and nothing but its training
+record can tell them (``policies.LearnedPolicy.scene_overrides`` carries them over)."""
+
+
 @dataclass(frozen=True)
 class SceneSpec:
     """One scene of the suite."""

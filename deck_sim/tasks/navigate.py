@@ -74,9 +74,9 @@ _TURNED_KEYS = (
     "dynamic_nearest",
     "dynamic_heading",
     "target_near",
+    "velocity",
 )
-"""Observation keys holding world vectors (..., 2) that ``episode.frame = "agent"`` turns into the agent's axes
-(``velocity`` too, read from the state)."""
+"""Observation keys holding world vectors (..., 2) that ``episode.frame = "agent"`` turns into the agent's axes."""
 
 
 class InvalidActionError(ValueError):
@@ -637,7 +637,7 @@ class Navigate(composer.Task):
         spec, d, st = self.spec, self._d, self._state
         period = spec.episode.control_period
         self._last_action = action
-        if self._agent_frame:  # ahead and to the left -> the world's axes
+        if self._agent_frame:  # ahead and to the left -> the world's axes (``agent_to_world`` on two floats)
             c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
             a0, a1 = c * a0 - s * a1, s * a0 + c * a1
             action = np.array([a0, a1])
@@ -937,19 +937,15 @@ class Navigate(composer.Task):
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
             lo, hi = self._arena.bounds
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
-        if self._agent_frame:
-            # turn every relative vector by minus the yaw: world (x, y) -> (c x + s y, -s x + c y)
-            yaw = float(st["yaw"][0])
+        # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
+        obs["position"] = agent_xy
+        obs["velocity"] = st["vel"][0]
+        yaw = float(st["yaw"][0])
+        obs["heading"] = np.array([math.cos(yaw), math.sin(yaw)])
+        if self._agent_frame:  # every relative vector turned by minus the yaw (new arrays: the views stay as they are)
             for key in _TURNED_KEYS:
                 if key in obs:
                     obs[key] = world_to_agent(obs[key], yaw)
-            obs["velocity"] = world_to_agent(st["vel"][0], yaw)
-        # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
-        obs["position"] = agent_xy
-        if not self._agent_frame:
-            obs["velocity"] = st["vel"][0]
-        yaw = float(st["yaw"][0])
-        obs["heading"] = np.array([math.cos(yaw), math.sin(yaw)])
         self._obs = obs
         self._mover_order = order_m
 
