@@ -188,8 +188,8 @@ class LearnedPolicy:
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
-        ``episode__mover_size`` for one trained on the movers' sizes, the ``episode__near_steps`` it was trained
-        with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its training overrode (the observation's keys and
+        ``episode__mover_size`` for one trained on the movers' sizes, the ``episode__near_steps`` and
+        ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its training overrode (the observation's keys and
         shapes cannot tell those)."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
@@ -204,6 +204,8 @@ class LearnedPolicy:
         # it its near field, and any other scene is refused by ``flatten``)
         if "target_near" in self.keys and "episode__near_steps" in trained:
             out["episode__near_steps"] = int(trained["episode__near_steps"])
+        if "route" in self.keys:  # its length is in the observation's shape, but the scene must be asked for it
+            out["episode__route_steps"] = int(self.shapes["route"][0])
         return out
 
     def reset(self) -> None:

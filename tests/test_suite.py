@@ -201,6 +201,31 @@ def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():
     assert clipped > 0 and inside > 0 and at_edge > 0
 
 
+def test_route_observation_follows_the_planners_way_round_the_statics():
+    from deck_sim.control.planners import ScriptedPlanner, _point_along
+    from deck_sim.policies import ScriptedPolicy
+
+    assert "route" not in deck_sim.load("deck1", seed=5).observation_spec()  # off by default
+    # no movers: the scripted planner's path is then the shortest way round the statics alone
+    env = deck_sim.load("deck1", seed=5, episode__route_steps=6, movers__tractors=0, movers__aircraft=0)
+    assert env.observation_spec()["route"].shape == (6, 2)
+    reach = env.task.spec.agent.reach
+    policy, planner = ScriptedPolicy(env), ScriptedPlanner()
+    ts, bent, short = env.reset(), 0, 0
+    while not ts.last():
+        obs, view = ts.observation, env.task.planner_view()
+        path = planner.path(view)  # expected values from the planner, not from the task's own method
+        expected = np.array([_point_along(path, reach * k) for k in range(1, 7)]) - view.agent_xy
+        np.testing.assert_allclose(obs["route"], expected, atol=1e-9)
+        bent += len(path) > 2
+        short += bool(np.allclose(obs["route"][-1], view.target_xy - view.agent_xy))
+        ts = env.step(policy.act(obs))
+    assert env.task.last_info["reached_goal"]
+    assert bent > 5 and short > 0  # the path bent round a parked aircraft, and ended at the target
+    with pytest.raises(deck_sim.SceneSpecError, match="route_steps"):
+        deck_sim.load("deck1", episode__route_steps=-1)
+
+
 def test_predicted_frame_mover_gives_each_movers_predicted_displacement():
     import deck_sim
 
@@ -223,7 +248,7 @@ def test_predicted_frame_mover_gives_each_movers_predicted_displacement():
 def test_agent_frame_turns_the_observation_and_the_action_into_the_agents_axes():
     from deck_sim.geometry import world_to_agent
 
-    kw = {"seed": 4, "episode__obstacle_shape": True, "episode__mover_size": True}
+    kw = {"seed": 4, "episode__obstacle_shape": True, "episode__mover_size": True, "episode__route_steps": 4}
     world = deck_sim.load("deck1", **kw)
     agent = deck_sim.load("deck1", episode__frame="agent", **kw)
     assert world.observation_spec() == agent.observation_spec()

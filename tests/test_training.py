@@ -656,6 +656,7 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
         "episode__predicted_frame": "mover",
         "episode__mover_size": True,
         "episode__near_steps": 2,
+        "episode__route_steps": 3,
         "episode__frame": "agent",  # the same keys and shapes as the deck's axes: only the record tells them apart
     }
     t = Trainer(
@@ -673,6 +674,7 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     assert "episode__time_limit" not in policy.scene_overrides
     del policy.meta["scene_overrides"]["episode__control_period"], policy.meta["scene_overrides"]["episode__time_limit"]
     assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
+    assert policy.shapes["route"] == (3, 2)
     # an actor whose near field came from its scene file asks for no range; a scene without one is refused
     del policy.meta["scene_overrides"]["episode__near_steps"]
     assert "episode__near_steps" not in policy.scene_overrides

@@ -339,6 +339,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "near": {"scene_overrides": {"episode__near_steps": 4}},
     "ego": {"scene_overrides": {"episode__frame": "agent"}},
     "widepolish": {"polish_epochs": 40, "polish_hidden": (512, 512, 512)},
+    "route": {"scene_overrides": {"episode__route_steps": 10}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -350,7 +351,8 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 ``moverframe``: the predicted positions as each mover's predicted displacement, ``episode.predicted_frame``;
 ``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``; ``ego``: the
 observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``; ``widepolish``: the
-final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``). Several
+final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``; ``route``: the next 10 steps' reach
+of the shortest way round the static obstacles in the observation, ``episode.route_steps``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

@@ -195,7 +195,18 @@ class EpisodeSpec:
     north edges, each clipped to it. An actor that reads ``target`` and ``position`` tens of metres wide after
     normalisation cannot resolve the last metres before a goal next to an edge. 0 (default, the paper's
     observation) leaves them out."""
+    route_steps: int = 0
+    """Also observe the way to the target around the static obstacles: ``route`` (``route_steps``, 2), the points
+    ``k * agent.reach`` metres along the shortest path (``geometry.VisibilityGraph``, for a disc of the agent's
+    radius plus ``ROUTE_MARGIN``, the scripted planner's static margin) for k = 1 .. ``route_steps``, relative to
+    the agent (the target itself where the path is shorter). The path ignores the movers, so it is the same
+    information with or without prediction: it is what a global planner hands a local one. 0 (default, the
+    paper's observation) leaves it out."""
 
+
+ROUTE_MARGIN = 2.5
+"""Metres of clearance beyond the agent's radius that the observed ``route`` keeps from static obstacles (the
+scripted planner's ``margin``)."""
 
 POLICY_EPISODE_FIELDS = ("predicted_frame", "frame", "control_period", "history")
 """``[episode]`` fields that change what an observation or an action means without changing any observation's key
@@ -353,6 +364,7 @@ def _validate(spec: SceneSpec, src: str) -> None:
     _check(e.history >= 2, f"{src} [episode].history", f"must be >= 2, got {e.history}")
     _check(e.horizon >= 1, f"{src} [episode].horizon", f"must be >= 1, got {e.horizon}")
     _check(e.near_steps >= 0, f"{src} [episode].near_steps", f"must be >= 0, got {e.near_steps}")
+    _check(e.route_steps >= 0, f"{src} [episode].route_steps", f"must be >= 0, got {e.route_steps}")
     if spec.paper_counts != (0, 0):
         _check(
             (s.count, m.count) == spec.paper_counts,

@@ -16,8 +16,9 @@ Observation (all relative vectors in the world frame, metres, or in the agent's 
     (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
     ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
-    the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``)
-    and the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``).
+    the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``),
+    the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``) and the
+    next points of the shortest way round the static obstacles (``route_steps``: ``route``).
 """
 
 from __future__ import annotations
@@ -43,8 +44,8 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, VisibilityGraph, world_to_agent
-from deck_sim.scenes import SceneSpec
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, world_to_agent
+from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
 
@@ -74,6 +75,7 @@ _TURNED_KEYS = (
     "dynamic_nearest",
     "dynamic_heading",
     "target_near",
+    "route",
     "velocity",
 )
 """Observation keys holding world vectors (..., 2) that ``episode.frame = "agent"`` turns into the agent's axes."""
@@ -205,6 +207,8 @@ class Navigate(composer.Task):
         self._predicted_from_agent = spec.episode.predicted_frame == "agent"
         self._near = spec.episode.near_steps * spec.agent.reach  # metres of the near field; 0: not observed
         self._agent_frame = spec.episode.frame == "agent"  # observation and action in the agent's axes
+        self._route_steps = spec.episode.route_steps  # points of the observed route; 0: not observed
+        self._route_graph: VisibilityGraph | None = None  # the statics' graph for a disc of the agent (per episode)
         self._mover_spawn_radius = np.hypot(self._mover_half[:, 0], self._mover_half[:, 1]) + self._mover_radius_fp
         # disc radius of each mover for routes and yielding: half the width for vehicles that drive forward
         self._mover_disc = np.array(
@@ -290,6 +294,8 @@ class Navigate(composer.Task):
             shapes["dynamic_size"] = (n, 2)
         if self._near > 0:
             shapes.update({"target_near": (2,), "edge_near": (4,)})
+        if self._route_steps > 0:
+            shapes["route"] = (self._route_steps, 2)
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
         self._obs_shapes = shapes
         self._obs = {k: np.zeros(v) for k, v in shapes.items()}  # until the first episode starts
@@ -570,6 +576,10 @@ class Navigate(composer.Task):
             ]
         )
         self._static_centres = self._static_fp.centers
+        if self._route_steps > 0:
+            self._route_graph = VisibilityGraph(
+                self._static_fp, self.spec.agent.radius + ROUTE_MARGIN, self._arena.bounds
+            )
         self._all_fp = Footprints.concatenate(
             [  # statics, then movers (rows refreshed every step)
                 self._static_fp,
@@ -937,6 +947,8 @@ class Navigate(composer.Task):
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
             lo, hi = self._arena.bounds
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
+        if self._route_steps > 0:
+            obs["route"] = self.route_points(agent_xy) - agent_xy
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
         obs["position"] = agent_xy
         obs["velocity"] = st["vel"][0]
@@ -983,6 +995,23 @@ class Navigate(composer.Task):
         if not self._agent_frame:
             return action
         return np.clip(world_to_agent(action, float(self._state["yaw"][0])), -1.0, 1.0)
+
+    def route_points(self, agent_xy: np.ndarray) -> np.ndarray:
+        """(``route_steps``, 2) world points ``k * agent.reach`` metres (k = 1, 2, ...) along the shortest path
+        from ``agent_xy`` to the target around this episode's static obstacles (scene field
+        ``episode.route_steps``); the target itself beyond the path's end. Where no path exists (the agent
+        boxed in), the straight line to the target stands in for it."""
+        if self._route_graph is None:
+            raise RuntimeError("the scene's episode.route_steps is 0: no route is observed")
+        target = self.layout.target_xy
+        try:
+            path = self._route_graph.shortest_path(agent_xy, target)
+        except NoPathError:
+            path = np.stack([agent_xy, target])
+        seg = np.diff(path, axis=0)
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+        s = np.minimum(self.spec.agent.reach * np.arange(1, self._route_steps + 1), cum[-1])
+        return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
 
     def planner_view(self) -> PlannerView:
         """Full knowledge of the current step for the scripted planner."""
