@@ -189,8 +189,8 @@ class LearnedPolicy:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
         ``episode__mover_size`` for one trained on the movers' sizes, the ``episode__near_steps`` and
-        ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its training overrode (the observation's keys and
-        shapes cannot tell those)."""
+        ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its
+        training overrode (the observation's keys and shapes cannot tell those)."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True

@@ -18,7 +18,8 @@ on deck 2). The decks' DDPG recipe runs 160,000 steps in about the wall-clock ti
 40,000, by collecting four transitions per update instead of two. ``--steps`` sets one budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
-actor with the best periodic held-out evaluation (seed-500 stream) is then measured on ``--episodes`` further
+shipped actor (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the one with the
+best periodic held-out evaluation on the seed-500 stream) is then measured on ``--episodes`` further
 held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a training,
 demonstration or selection episode), and copied to ``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few
 hundred KiB). The figures go to ``deck_sim/trained/results.json`` (``{scene: {algo: figures}}``) and
@@ -63,6 +64,7 @@ from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy, shipped_log_dir  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.config import shipped_arm  # noqa: E402
+from training.loop import shipped_actor  # noqa: E402
 
 HELD_OUT_SEED = 1000
 SB3_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
@@ -191,7 +193,7 @@ def main() -> None:
         else:
             train(run, scene, algo, steps, args.seed, fields)
             tmp = dest.with_name(dest.name + ".tmp")
-            shutil.copyfile(run / "actor_best.npz", tmp)
+            shutil.copyfile(shipped_actor(run), tmp)
             os.replace(tmp, dest)
             ship_logs(run, scene, algo)
         t0 = time.perf_counter()
@@ -245,8 +247,8 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
         "`training.loop.Trainer` runs of the recipe in the table (`training.config.SHIPPED_RECIPES`; DDPG: the same",
         "agent, recipe and budget without the MPC prediction); DQN and A2C are stable-baselines3 runs",
-        "(`training.baselines`) exported to numpy. Each file is the actor of the run's best periodic evaluation",
-        "(seed-500 episodes; with `polish`, the fitted actor is evaluated too). Held-out: consecutive episodes of",
+        "(`training.baselines`) exported to numpy. A recipe with `polish` ships the run's final, fitted actor; any",
+        "other run the actor of its best periodic evaluation (seed-500 episodes). Held-out: consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
         "(never a training, demonstration or model-selection episode). Training time: wall-clock of the run,",
         "periodic evaluations included, while other work shared the machine; `machine` in `results.json` names",

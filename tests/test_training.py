@@ -15,7 +15,7 @@ from training.buffers import ReplayBuffer
 from training.config import ConfigError, TrainConfig, make_config, train_episode_seed
 from training.ddpg import DDPGAgent, soft_update
 from training.envs import FAR, ObservationLayout
-from training.loop import CheckpointError, Trainer, load_checkpoint
+from training.loop import CheckpointError, Trainer, load_checkpoint, shipped_actor
 
 
 def _set_linear(layer: torch.nn.Linear, weight, bias) -> None:  # noqa: ANN001
@@ -580,8 +580,12 @@ def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_
     assert [(r["step"], r["polished"]) for r in evals] == [("120", "0"), ("120", "1")]
     meta = json.loads(str(np.load(tmp_path / "polished" / "actor.npz", allow_pickle=False)["meta"]))
     assert meta["polished"] is True
+    # what is shipped: the fitted final actor, else the best evaluation's
+    assert shipped_actor(tmp_path / "polished") == tmp_path / "polished" / "actor.npz"
+    assert shipped_actor(tmp_path / "plain") == tmp_path / "plain" / "actor_best.npz"
     later = Trainer(_short(polish_epochs=30), tmp_path / "plain", resume=True, progress=False)
     later.train()
+    assert shipped_actor(tmp_path / "plain") == tmp_path / "plain" / "actor.npz"
     assert [r["polished"] for r in _rows(tmp_path / "plain" / "eval.csv")] == ["0", "1"]  # no second online row
     assert _rows(tmp_path / "plain" / "eval.csv") == evals
     for name in ("actor.npz", "actor_best.npz"):
