@@ -60,6 +60,9 @@ class BehaviourParams:
     agent_yield_distance: float = 6.0
     """Metres of free space a mover keeps ahead of it when the agent is there (an emergency stop: it brakes at
     once, as hard as its drive allows)."""
+    agent_yield_braking: float = 0.0
+    """m/s^2: above 0, the reach ahead for the agent grows by the mover's stopping distance at this braking,
+    v^2 / (2 * agent_yield_braking), v its speed now capped at ``speed_range[1]``; 0 keeps it fixed."""
     arrive_tolerance: float = 1.0
     """Metres from the spot at which a slow mover counts as arrived."""
     waypoint_tolerance: float = 2.5
@@ -170,7 +173,12 @@ class MoverBehaviour:
         parts = self._agent_parts
         extent = float(np.max(np.hypot(parts[:, 2], parts[:, 3]) + parts[:, 4]))
         offset = float(np.max(np.hypot(parts[:, 0], parts[:, 1])))
-        near = np.hypot(self._agent_reach[:, 0] + extent, self._agent_width[:, 0] + extent) + offset
+        # the stopping distance's share of the reach: v^2 * _agent_brake_gain, v capped at the fastest cruise
+        b = self.params.agent_yield_braking
+        self._agent_brake_gain = 0.5 / b if b > 0 else 0.0
+        self._agent_brake_vmax = float(self.params.speed_range[1])
+        brake_max = self._agent_brake_vmax**2 * self._agent_brake_gain
+        near = np.hypot(self._agent_reach[:, 0] + brake_max + extent, self._agent_width[:, 0] + extent) + offset
         self._agent_near_sq = near * near
         self._any_holonomic = bool(np.any(self.holonomic))
         # the hot path (``command``) works on plain Python floats: its tables as nested lists
@@ -462,10 +470,13 @@ class MoverBehaviour:
             near = [i for i in range(n) if rel_sq[i] < test_sq[i]]
             if any(rel_sq[i] < near_sq[i] for i in near):
                 parts = self._agent_frame(agent_xy, agent_yaw)
+                gain, vmax = self._agent_brake_gain, self._agent_brake_vmax
                 for i in near:
-                    if self._agent_ahead(i, pos[i], fx[i], fy[i], parts):
+                    v = min(abs(speeds[i]), vmax)
+                    extra = v * v * gain  # its stopping distance (0.0 with a fixed reach)
+                    if self._agent_ahead(i, pos[i], fx[i], fy[i], parts, extra):
                         # a slow vehicle only counts the agent if it is also ahead towards its aim
-                        for_agent[i] = not slow[i] or self._agent_ahead(i, pos[i], *aim_dir[i], parts)
+                        for_agent[i] = not slow[i] or self._agent_ahead(i, pos[i], *aim_dir[i], parts, extra)
 
         ys, aws = self.yield_since.tolist(), self.agent_wait_since.tolist()
         last_give_up = self.last_give_up.tolist()
@@ -519,18 +530,20 @@ class MoverBehaviour:
         dx: float,
         dy: float,
         agent: tuple[list[tuple[float, ...]], float, float],
+        extra: float = 0.0,
     ) -> bool:
         """Whether any part of the agent lies in the corridor ahead of mover i (at ``position``) along (dx, dy).
 
-        The corridor reaches ``agent_yield_distance`` beyond the mover's nose and the part's extent along that
-        direction, and is as wide as both half-widths plus 1 m: a separating-axis test of the part's rounded box
-        on the mover's two axes.
+        The corridor reaches ``agent_yield_distance`` plus ``extra`` metres (the mover's stopping distance, with
+        ``agent_yield_braking``) beyond the mover's nose and the part's extent along that direction, and is as
+        wide as both half-widths plus 1 m: a separating-axis test of the part's rounded box on the mover's two
+        axes.
         """
         parts, c, s = agent
         ux = abs(dx * c + dy * s)  # the direction in the agent's frame
         uy = abs(dy * c - dx * s)
         x, y = position
-        reach_i, width_i = self._agent_reach_l[i], self._agent_width_l[i]
+        reach_i, width_i = self._agent_reach_l[i] + extra, self._agent_width_l[i]
         for cx, cy, hx, hy, r in parts:
             rx, ry = cx - x, cy - y
             along = rx * dx + ry * dy

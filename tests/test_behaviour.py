@@ -131,6 +131,34 @@ def test_a_mover_yields_to_the_agent_by_its_shape_turned_to_its_heading():
     assert not disc.yielding[0]
 
 
+def test_with_agent_yield_braking_a_faster_mover_stops_for_the_agent_from_farther():
+    """The emergency stop's reach: agent_yield_distance (6 m) + the nose (2 m) + the agent's disc (1 m), plus, with
+    ``agent_yield_braking`` b, the mover's stopping distance v^2 / (2 b), v capped at the fastest cruise (3 m/s)."""
+    from dataclasses import replace
+
+    def yields(braking: float, speed: float, ahead: float) -> bool:
+        behaviour = MoverBehaviour(
+            spots=SPOTS,
+            holonomic=np.zeros(1, dtype=bool),
+            radii=np.array([1.0]),
+            params=replace(PARAMS, agent_yield_braking=braking),
+            fronts=np.array([2.0]),
+            agent_radius=1.0,
+        )
+        graph = VisibilityGraph(Footprints.empty(), 1.0, BOUNDS)
+        behaviour.reset([graph], np.zeros((1, 2)), np.array([-1]), np.random.default_rng(0))
+        behaviour.aim[0] = np.array([60.0, 0.0])
+        cmd = behaviour.command(0.0, 0.5, np.zeros((1, 2)), np.zeros(1), np.array([speed]), np.array([ahead, 0.0]))
+        assert behaviour.yielding[0] == (cmd.speed[0] == 0.0)
+        return bool(behaviour.yielding[0])
+
+    assert yields(0.0, 3.0, 8.9) and not yields(0.0, 3.0, 9.1)  # fixed: 9 m whatever the speed
+    assert yields(1.0, 3.0, 13.4) and not yields(1.0, 3.0, 13.6)  # + 4.5 m at 3 m/s and 1 m/s^2
+    assert yields(1.0, 2.0, 10.9) and not yields(1.0, 2.0, 11.1)  # + 2 m at 2 m/s
+    assert yields(2.0, 3.0, 11.2) and not yields(2.0, 3.0, 11.3)  # + 2.25 m braking twice as hard
+    assert yields(1.0, 5.0, 13.4) and not yields(1.0, 5.0, 13.6)  # the speed capped at the fastest cruise
+
+
 def _view(mover_yaw: float, lateral: float) -> PlannerView:
     # an 18 m x 13 m aircraft standing at the origin; the agent (radius 7 m) passes it at ``lateral`` metres
     movers = Footprints(np.zeros((1, 2)), np.array([[9.0, 6.5]]), np.array([mover_yaw]), np.zeros(1))

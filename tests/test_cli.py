@@ -48,6 +48,25 @@ def test_run_prints_metrics_and_writes_results(tmp_path, capsys):
     assert (out / "episodes.csv").read_text().count("\n") == 2
 
 
+def test_run_overrides_fields_of_the_scene_file(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["run", "--scene", "deck1", "--policy", "zero", "--episodes", "1", "--quiet", "--no-record"]
+    sets = ["--scene-set", "episode.time_limit=3", "--scene-set", "movers.tractors=2"]
+    assert main([*args, "--out", str(out), *sets]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scene_set"] == {"episode__time_limit": 3, "movers__tractors": 2}
+    episode = (out / "episodes.csv").read_text().splitlines()
+    row = dict(zip(episode[0].split(","), episode[1].split(","), strict=True))
+    assert row["outcome"] == "timeout" and float(row["sim_time"]) == 3.0  # 3 s, not deck 1's time limit
+    capsys.readouterr()
+    assert main([*args, "--scene-set", "movers.agent_yield_braking=-1"]) == 2
+    assert "[movers].agent_yield_braking: must be >= 0, got -1" in capsys.readouterr().err
+    assert main([*args, "--scene-set", "time_limit=3"]) == 2
+    assert "--scene-set expects section.field=value" in capsys.readouterr().err
+    assert main([*args, "--scene-set", "episode.time_limit"]) == 2
+    assert "--scene-set expects field=value" in capsys.readouterr().err
+
+
 def test_bad_scene_and_policy_give_a_clear_error(capsys):
     assert main(["run", "--scene", "deck7", "--episodes", "1", "--quiet"]) == 2
     assert "unknown scene 'deck7'" in capsys.readouterr().err

@@ -87,6 +87,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     overrides = policy_overrides(args.policy, Path(args.scene).stem)
     if args.predictor:
         overrides["episode__predictor"] = args.predictor
+    scene_set = _scene_set(args.scene_set)
+    overrides.update(scene_set)
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
@@ -116,6 +118,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         "predictor": predictor,
         "seed": args.seed,
         "episodes": args.episodes,
+        "scene_set": scene_set,
         "deck_sim": deck_sim.__version__,
         "summary": summary,
         "wall_s": wall,
@@ -160,14 +163,26 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scene_set(items: list[str]) -> dict[str, object]:
+    """``--scene-set section.field=value`` pairs as ``deck_sim.load`` overrides (``section__field``), values
+    parsed as JSON where they can be, else strings; the scene checks the names and values."""
+    out = {}
+    for key, value in _parse_set(items, flag="--scene-set").items():
+        section, dot, field = key.partition(".")
+        if not dot or not section or not field:
+            raise ValueError(f"--scene-set expects section.field=value (e.g. movers.yield_distance=12), got {key!r}")
+        out[f"{section}__{field}"] = value
+    return out
+
+
 # -- training: `deck-sim train` --------------------------------------------------------------------------------
-def _parse_set(items: list[str]) -> dict[str, object]:
+def _parse_set(items: list[str], flag: str = "--set") -> dict[str, object]:
     """``--set field=value`` pairs as config fields (values parsed as JSON where they can be, else strings)."""
     out: dict[str, object] = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise ValueError(f"--set expects field=value, got {item!r}")
+            raise ValueError(f"{flag} expects field=value, got {item!r}")
         try:
             out[key.strip()] = json.loads(value)
         except json.JSONDecodeError:
@@ -524,6 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="none, constant_velocity, oracle or mpc (default: oracle for scripted, else the scene's)",
     )
+    p.add_argument("--scene-set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                   help="override a field of the scene file, e.g. --scene-set movers.agent_yield_braking=2.0 "
+                        "(recorded in summary.json)")
     p.add_argument("--out", default=None, help="folder for results.md, summary.json, episodes.csv")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)

@@ -105,6 +105,11 @@ class MoverSpec:
     agent_yield_distance: float = 6.0
     """Metres: a mover brakes at once when the agent is this close ahead of it (an emergency stop; keep it
     short so that movers do not wait on an agent that waits on them)."""
+    agent_yield_braking: float = 0.0
+    """m/s^2: with a value above 0, the emergency stop for the agent reaches ``agent_yield_distance`` plus the
+    mover's stopping distance at this braking, v^2 / (2 * agent_yield_braking), with v its speed now (capped at the
+    top of ``speed_range``), so a fast tractor starts braking early enough to stop short of the aircraft; 0
+    (default) keeps the fixed reach."""
     spawn_near_agent: int = 0
     """How many movers start on free ground within ``near_radius`` of the agent instead of at spots."""
     spawn_random: int = 0
@@ -364,6 +369,11 @@ def _validate(spec: SceneSpec, src: str) -> None:
     _check(e.history >= 2, f"{src} [episode].history", f"must be >= 2, got {e.history}")
     _check(e.horizon >= 1, f"{src} [episode].horizon", f"must be >= 1, got {e.horizon}")
     _check(e.near_steps >= 0, f"{src} [episode].near_steps", f"must be >= 0, got {e.near_steps}")
+    _check(
+        m.agent_yield_braking >= 0,
+        f"{src} [movers].agent_yield_braking",
+        f"must be >= 0, got {m.agent_yield_braking}",
+    )
     _check(e.route_steps >= 0, f"{src} [episode].route_steps", f"must be >= 0, got {e.route_steps}")
     if spec.paper_counts != (0, 0):
         _check(

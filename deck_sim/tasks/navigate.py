@@ -230,6 +230,7 @@ class Navigate(composer.Task):
                 yield_distance=spec.movers.yield_distance,
                 yield_to_agent=spec.movers.yield_to_agent,
                 agent_yield_distance=spec.movers.agent_yield_distance,
+                agent_yield_braking=spec.movers.agent_yield_braking,
                 arrive_tolerance=1.0 if spec.arena == "deck" else 0.5,
                 waypoint_tolerance=2.5 if spec.arena == "deck" else 0.8,
             ),
