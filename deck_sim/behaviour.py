@@ -473,7 +473,7 @@ class MoverBehaviour:
                 gain, vmax = self._agent_brake_gain, self._agent_brake_vmax
                 for i in near:
                     v = min(abs(speeds[i]), vmax)
-                    extra = v * v * gain  # its stopping distance (0.0 with a fixed reach)
+                    extra = v * v * gain if gain else 0.0  # its stopping distance (0 with a fixed reach)
                     if self._agent_ahead(i, pos[i], fx[i], fy[i], parts, extra):
                         # a slow vehicle only counts the agent if it is also ahead towards its aim
                         for_agent[i] = not slow[i] or self._agent_ahead(i, pos[i], *aim_dir[i], parts, extra)

@@ -347,6 +347,15 @@ class VisibilityGraph:
         return np.vstack([start[None], self.nodes[chain[::-1]], goal[None]])
 
 
+def points_along(path: np.ndarray, distances: np.ndarray) -> np.ndarray:
+    """The points (k, 2) at arc lengths ``distances`` (k,) metres along a polyline (m, 2) from its start; a
+    distance beyond the polyline's end gives its end, a negative one its start."""
+    seg = np.diff(path, axis=0)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    s = np.asarray(distances, dtype=np.float64)
+    return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=-1)
+
+
 def polyline_length(path: np.ndarray) -> float:
     """Length in metres of a polyline (m, 2)."""
     if len(path) < 2:

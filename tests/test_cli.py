@@ -65,6 +65,14 @@ def test_run_overrides_fields_of_the_scene_file(tmp_path, capsys):
     assert "--scene-set expects section.field=value" in capsys.readouterr().err
     assert main([*args, "--scene-set", "episode.time_limit"]) == 2
     assert "--scene-set expects field=value" in capsys.readouterr().err
+    assert main([*args, "--scene-set", "mover.yield_distance=3"]) == 2
+    assert "no section [mover]; the sections are agent, static, movers, reward, episode" in capsys.readouterr().err
+    # what a policy or --predictor needs is not overridden behind its back
+    assert main([*args, "--predictor", "none", "--scene-set", "episode.predictor=mpc"]) == 2
+    assert "contradicts --predictor, which needs 'none'" in capsys.readouterr().err
+    mddpg = ["run", "--policy", "mddpg", "--episodes", "1", "--quiet", "--no-record"]
+    assert main([*mddpg, "--scene-set", "episode.mover_size=false"]) == 2
+    assert "contradicts policy 'mddpg', which needs True" in capsys.readouterr().err
 
 
 def test_bad_scene_and_policy_give_a_clear_error(capsys):

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, polyline_length
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along, polyline_length
 
 coord = st.floats(-50, 50, allow_nan=False)
 size = st.floats(0.1, 10, allow_nan=False)
@@ -164,3 +164,22 @@ def test_agent_axes_turn_vectors_and_back_keeping_their_length(yaw, xy):
     # rows of an (n, k, 2) array turn alike
     stack = np.tile(v, (3, 4, 1))
     np.testing.assert_allclose(world_to_agent(stack, yaw), np.tile(local, (3, 4, 1)), atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=2, max_size=6),
+    st.lists(st.floats(-10, 400), min_size=1, max_size=8),
+)
+def test_points_along_lie_on_the_polyline_at_their_arc_length(vertices, distances):
+    path = np.array(vertices)
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    assume(np.all(seg > 1e-3))
+    points = points_along(path, np.array(distances))
+    total = polyline_length(path)
+    for d, p in zip(distances, points, strict=True):
+        d = min(max(d, 0.0), total)  # clamped to the ends
+        k = min(int(np.searchsorted(np.cumsum(seg), d)), len(seg) - 1)  # the segment holding arc length d
+        start = float(np.sum(seg[:k]))
+        expected = path[k] + (path[k + 1] - path[k]) * (d - start) / seg[k]
+        np.testing.assert_allclose(p, expected, atol=1e-6)

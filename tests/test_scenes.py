@@ -105,6 +105,9 @@ def test_overrides_apply_and_are_validated():
         load_scene("deck1", episode__predictor="crystal_ball")
     with pytest.raises(SceneSpecError, match="override 'predictor'"):
         load_scene("deck1", predictor="oracle")
+    # a movers' field reaches the movers' behaviour of the task built from it
+    env = deck_sim.load("deck1", seed=0, movers__agent_yield_braking=1.5)
+    assert env.task._behaviour.params.agent_yield_braking == 1.5
 
 
 def test_unknown_site_is_named(tmp_path):

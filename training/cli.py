@@ -88,11 +88,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.predictor:
         overrides["episode__predictor"] = args.predictor
     scene_set = _scene_set(args.scene_set)
+    for key, value in scene_set.items():
+        # an actor's observation fields (and --predictor) are not to be changed behind its back
+        if key in overrides and overrides[key] != value:
+            given = "--predictor" if key == "episode__predictor" and args.predictor else f"policy {args.policy!r}"
+            raise ValueError(
+                f"--scene-set {key.replace('__', '.')}={value!r} contradicts {given}, which needs {overrides[key]!r}"
+            )
     overrides.update(scene_set)
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
-    out = Path(args.out) if args.out else Path("runs") / f"{args.scene}-{_policy_label(args.policy)}-seed{args.seed}"
+    # a variant of the scene gets its own default folder (its fields in the name), not the plain scene's
+    variant = "".join(f"-{k.split('__', 1)[1]}={v}" for k, v in scene_set.items())
+    default_out = Path("runs") / f"{args.scene}-{_policy_label(args.policy)}-seed{args.seed}{variant}"
+    out = Path(args.out) if args.out else default_out
     recorder = _open_run_recorder(args, env, out)
     results = []
     t0 = time.perf_counter()
@@ -166,11 +176,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _scene_set(items: list[str]) -> dict[str, object]:
     """``--scene-set section.field=value`` pairs as ``deck_sim.load`` overrides (``section__field``), values
     parsed as JSON where they can be, else strings; the scene checks the names and values."""
+    from deck_sim.scenes import SECTIONS
+
     out = {}
     for key, value in _parse_set(items, flag="--scene-set").items():
         section, dot, field = key.partition(".")
         if not dot or not section or not field:
             raise ValueError(f"--scene-set expects section.field=value (e.g. movers.yield_distance=12), got {key!r}")
+        if section not in SECTIONS:
+            raise ValueError(f"--scene-set {key}: no section [{section}]; the sections are {', '.join(SECTIONS)}")
         out[f"{section}__{field}"] = value
     return out
 

@@ -660,17 +660,21 @@ def _main_thread() -> bool:
 def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
     """The actor file of a finished run that ``scripts/train_shipped.py`` ships.
 
-    A run whose recipe ends with the cloning fit (``polish_epochs`` > 0 in its ``config.json``) ships its final,
-    fitted ``actor.npz``; any other run (stable-baselines3's, or one without the fit) the actor of its best
-    periodic evaluation, ``actor_best.npz``. Picking the best of ten 100-episode evaluations picks noise (a 95 %
-    interval of +-7 points near 85 % success): in the five deck runs measured where the two differ, the final
-    actor did as well or up to 6 points better on 400 held-out episodes (``docs/training.md``, the best of ten
-    evaluations against the final actor).
+    A run whose final ``actor.npz`` is the cloning fit's (its own record says ``polished``) ships that file; any
+    other run (stable-baselines3's, or one without the fit) the actor of its best periodic evaluation,
+    ``actor_best.npz``. Picking the best of ten 100-episode evaluations picks noise (a 95 % interval of +-7 points
+    near 85 % success): in the five deck runs measured where the two differ, the final actor was within a point
+    or up to 6 points better on 400 held-out episodes (``docs/training.md``, the best of ten evaluations against
+    the final actor).
     """
     run = Path(run_dir)
-    config = run / "config.json"
-    polish = json.loads(config.read_text()).get("polish_epochs", 0) if config.exists() else 0
-    return run / ("actor.npz" if polish else "actor_best.npz")
+    final = run / "actor.npz"
+    if final.exists():
+        with np.load(final, allow_pickle=False) as f:
+            polished = "meta" in f.files and bool(json.loads(str(f["meta"])).get("polished", False))
+        if polished:
+            return final
+    return run / "actor_best.npz"
 
 
 def config_from_checkpoint(run_dir: str | os.PathLike[str]) -> TrainConfig:

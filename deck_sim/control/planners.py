@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along
 from deck_sim.types import PlannerView
 
 
@@ -150,11 +150,7 @@ class ScriptedPlanner:
 
 def _point_along(path: np.ndarray, distance: float) -> np.ndarray:
     """The point ``distance`` metres along a polyline from its start (its end if shorter)."""
-    seg = np.diff(path, axis=0)
-    lengths = np.hypot(seg[:, 0], seg[:, 1])
-    cum = np.concatenate([[0.0], np.cumsum(lengths)])
-    d = min(distance, cum[-1])
-    return np.array([np.interp(d, cum, path[:, 0]), np.interp(d, cum, path[:, 1])])
+    return points_along(path, np.array([distance]))[0]
 
 
 def _headings(movers: Footprints, future: np.ndarray, min_step: float = 0.3) -> np.ndarray:

@@ -108,8 +108,8 @@ class MoverSpec:
     agent_yield_braking: float = 0.0
     """m/s^2: with a value above 0, the emergency stop for the agent reaches ``agent_yield_distance`` plus the
     mover's stopping distance at this braking, v^2 / (2 * agent_yield_braking), with v its speed now (capped at the
-    top of ``speed_range``), so a fast tractor starts braking early enough to stop short of the aircraft; 0
-    (default) keeps the fixed reach."""
+    top of ``speed_range``), so a fast tractor starts braking earlier (the control period's delay, the agent's own
+    motion and how hard the vehicle really brakes are not in it); 0 (default) keeps the fixed reach."""
     spawn_near_agent: int = 0
     """How many movers start on free ground within ``near_radius`` of the agent instead of at spots."""
     spawn_random: int = 0
@@ -245,6 +245,8 @@ _SECTIONS = {
     "reward": RewardSpec,
     "episode": EpisodeSpec,
 }
+SECTIONS = tuple(_SECTIONS)
+"""The sections of a scene file, in order (the first part of an override ``section__field``)."""
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:

@@ -44,7 +44,7 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, world_to_agent
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along, world_to_agent
 from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
@@ -1000,8 +1000,9 @@ class Navigate(composer.Task):
     def route_points(self, agent_xy: np.ndarray) -> np.ndarray:
         """(``route_steps``, 2) world points ``k * agent.reach`` metres (k = 1, 2, ...) along the shortest path
         from ``agent_xy`` to the target around this episode's static obstacles (scene field
-        ``episode.route_steps``); the target itself beyond the path's end. Where no path exists (the agent
-        boxed in), the straight line to the target stands in for it."""
+        ``episode.route_steps``); the target itself beyond the path's end. Where the graph finds no path (the
+        agent boxed in, or inside grown obstacles with no way out), the straight line to the target stands in for
+        it, as in the scripted planner."""
         if self._route_graph is None:
             raise RuntimeError("the scene's episode.route_steps is 0: no route is observed")
         target = self.layout.target_xy
@@ -1009,10 +1010,7 @@ class Navigate(composer.Task):
             path = self._route_graph.shortest_path(agent_xy, target)
         except NoPathError:
             path = np.stack([agent_xy, target])
-        seg = np.diff(path, axis=0)
-        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
-        s = np.minimum(self.spec.agent.reach * np.arange(1, self._route_steps + 1), cum[-1])
-        return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
+        return points_along(path, self.spec.agent.reach * np.arange(1, self._route_steps + 1))
 
     def planner_view(self) -> PlannerView:
         """Full knowledge of the current step for the scripted planner."""
