@@ -218,6 +218,7 @@ def main() -> None:
             "recipe": shipped_arm(scene, algo).recipe if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
+            "polished": bool(meta.get("polished", False)),
             "git_commit": str(meta.get("git_commit", "")),
             "train_wall_s": wall,
             "seed": args.seed,
@@ -247,16 +248,18 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
         "`training.loop.Trainer` runs of the recipe in the table (`training.config.SHIPPED_RECIPES`; DDPG: the same",
         "agent, recipe and budget without the MPC prediction); DQN and A2C are stable-baselines3 runs",
-        "(`training.baselines`) exported to numpy. A recipe with `polish` ships the run's final, fitted actor; any",
-        "other run the actor of its best periodic evaluation (seed-500 episodes). Held-out: consecutive episodes of",
+        "(`training.baselines`) exported to numpy. A run that ends with the cloning fit (`polish`) ships its final,",
+        "fitted actor (`training.loop.shipped_actor`); any other run, and any file shipped before that rule, the",
+        "actor of its best periodic evaluation (seed-500 episodes): the column `actor` says which. Held-out:",
+        "consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
         "(never a training, demonstration or model-selection episode). Training time: wall-clock of the run,",
         "periodic evaluations included, while other work shared the machine; `machine` in `results.json` names",
         "the machine of the held-out measurement, which `--evaluate-only` repeats without training.",
         "",
-        "| scene | agent | recipe | held-out episodes | success | collision | timeout | left the deck | mean reward |"
-        " path / straight | turning angle | training steps | training time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | agent | recipe | actor | held-out episodes | success | collision | timeout | left the deck |"
+        " mean reward | path / straight | turning angle | training steps | training time |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
     for scene in sorted(report):
@@ -264,8 +267,14 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
             r = report[scene][algo]
             # (records from before the recipe was written down: the first recipe of each kind of agent)
             recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
+            # (records from before ``polished`` was written down: the shipped file's own record says)
+            shipped = TRAINED_DIR / f"{scene}_{algo}.npz"
+            polished = r.get("polished")
+            if polished is None and shipped.exists():
+                polished = bool(LearnedPolicy.load(shipped).meta.get("polished", False))
+            actor = "final, fitted" if polished else f"best evaluation ({r['selected_at_step']} steps)"
             lines.append(
-                f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {r['episodes']} | "
+                f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {actor} | {r['episodes']} | "
                 f"{100 * r['success']:.1f} % | "
                 f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
                 f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
