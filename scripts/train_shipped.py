@@ -218,7 +218,6 @@ def main() -> None:
             "recipe": shipped_arm(scene, algo).recipe if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
-            "polished": bool(meta.get("polished", False)),
             "git_commit": str(meta.get("git_commit", "")),
             "train_wall_s": wall,
             "seed": args.seed,
@@ -267,11 +266,8 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
             r = report[scene][algo]
             # (records from before the recipe was written down: the first recipe of each kind of agent)
             recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
-            # (records from before ``polished`` was written down: the shipped file's own record says)
-            shipped = TRAINED_DIR / f"{scene}_{algo}.npz"
-            polished = r.get("polished")
-            if polished is None and shipped.exists():
-                polished = bool(LearnedPolicy.load(shipped).meta.get("polished", False))
+            # which actor the file is: its own record says
+            polished = LearnedPolicy.load(TRAINED_DIR / f"{scene}_{algo}.npz").meta.get("polished", False)
             actor = "final, fitted" if polished else f"best evaluation ({r['selected_at_step']} steps)"
             lines.append(
                 f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {actor} | {r['episodes']} | "

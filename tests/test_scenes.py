@@ -84,18 +84,15 @@ def test_semantic_errors_are_named():
     data["reward"]["attraction_min"] = 5.0
     with pytest.raises(SceneSpecError, match=r"l <= L"):
         parse_scene(data)
-    data = _deck1()
-    data["episode"]["near_steps"] = -1
-    with pytest.raises(SceneSpecError, match=r"\[episode\]\.near_steps: must be >= 0, got -1"):
-        parse_scene(data)
-    data = _deck1()
-    data["episode"]["route_steps"] = -2
-    with pytest.raises(SceneSpecError, match=r"\[episode\]\.route_steps: must be >= 0, got -2"):
-        parse_scene(data)
-    data = _deck1()
-    data["movers"]["agent_yield_braking"] = -1.0
-    with pytest.raises(SceneSpecError, match=r"\[movers\]\.agent_yield_braking: must be >= 0, got -1.0"):
-        parse_scene(data)
+    for section, name, value in (
+        ("episode", "near_steps", -1),
+        ("episode", "route_steps", -2),
+        ("movers", "agent_yield_braking", -1.0),
+    ):
+        data = _deck1()
+        data[section][name] = value
+        with pytest.raises(SceneSpecError, match=rf"\[{section}\]\.{name}: must be >= 0, got {value}"):
+            parse_scene(data)
 
 
 def test_overrides_apply_and_are_validated():

@@ -50,14 +50,12 @@ class DDPGAgent:
         self.obs_dim, self.act_dim = obs_dim, act_dim
         hidden = tuple(config.hidden)
         self.norm = RunningNorm(obs_dim, enabled=config.obs_norm)
-        self.actor = Actor(obs_dim, act_dim, hidden)
+        self.set_actor_widths(hidden)  # the actor, its target and its optimiser (initialised before the critic)
         self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1)
-        self.actor_target = copy.deepcopy(self.actor)
         self.critic_target = copy.deepcopy(self.critic)
-        for p in (*self.actor_target.parameters(), *self.critic_target.parameters()):
+        for p in self.critic_target.parameters():
             p.requires_grad_(False)
         # fused Adam: one kernel per step for all parameters (about 10 % of an update at 2 x 256 on one core)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.generator = generator if generator is not None else torch.Generator().manual_seed(0)
         self.updates = 0
@@ -194,7 +192,8 @@ class DDPGAgent:
 
     def set_actor_widths(self, widths: tuple[int, ...]) -> None:
         """Replace the actor, its target and its optimiser by ones with hidden ``widths`` (freshly initialised):
-        the final fit's own actor (``config.polish_hidden``); the critic is left as it is."""
+        the online actor (``config.hidden``) or the final fit's own (``config.polish_hidden``); the critic is left
+        as it is."""
         cfg = self.config
         self.actor = Actor(self.obs_dim, self.act_dim, tuple(widths))
         self.actor_target = copy.deepcopy(self.actor)

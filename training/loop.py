@@ -667,13 +667,12 @@ def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
     or up to 6 points better on 400 held-out episodes (``docs/training.md``, the best of ten evaluations against
     the final actor).
     """
+    from deck_sim.policies import LearnedPolicy  # (reads and checks the file; PolicyFileError if it cannot)
+
     run = Path(run_dir)
     final = run / "actor.npz"
-    if final.exists():
-        with np.load(final, allow_pickle=False) as f:
-            polished = "meta" in f.files and bool(json.loads(str(f["meta"])).get("polished", False))
-        if polished:
-            return final
+    if final.exists() and LearnedPolicy.load(final).meta.get("polished", False):
+        return final
     return run / "actor_best.npz"
 
 
