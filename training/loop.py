@@ -667,8 +667,6 @@ def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
     or up to 6 points better on 400 held-out episodes (``docs/training.md``, the best of ten evaluations against
     the final actor).
     """
-    from deck_sim.policies import LearnedPolicy  # (reads and checks the file; PolicyFileError if it cannot)
-
     run = Path(run_dir)
     final = run / "actor.npz"
     if final.exists() and LearnedPolicy.load(final).meta.get("polished", False):
