@@ -23,7 +23,8 @@ best periodic held-out evaluation on the seed-500 stream) is then measured on ``
 held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a training,
 demonstration or selection episode), and copied to ``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few
 hundred KiB). The figures go to ``deck_sim/trained/results.json`` (``{scene: {algo: figures}}``) and
-``deck_sim/trained/README.md``, written by this script, never by hand; the run's held-out evaluation log and
+``deck_sim/trained/README.md``, written by this script, never by hand, as is the table between the
+``README_MARKERS`` of the project's README; the run's held-out evaluation log and
 config go to ``deck_sim/trained/logs/<scene>_<algo>/`` (the learning curves of ``docs/results.md``). An agent
 already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
 again without training).
@@ -71,6 +72,10 @@ SB3_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
 """Training steps of the shipped DQN and A2C agents of a scene (MDDPG and DDPG: ``SHIPPED_RECIPES``)."""
 SB3_EVAL_EVERY, SB3_EVAL_EPISODES = 10_000, 50
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
+PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
+README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.py) -->", "<!-- shipped-table: end -->")
+"""The project README's shipped-policies table lies between these two lines; ``write_readme`` rewrites it from
+``results.json`` (``tests/test_baseline_export.py`` checks the two agree)."""
 
 
 def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
@@ -277,6 +282,44 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
                 f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"
             )
     (TRAINED_DIR / "README.md").write_text("\n".join(lines) + "\n")
+    write_project_table(report)
+
+
+def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
+    """The project README's shipped-policies table: held-out rates, training steps and wall-clock minutes."""
+    lines = [
+        "| scene | agent | success | collision | timeout | left the deck / square | training steps |"
+        " training time (under load) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
+    for scene in sorted(report):
+        for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
+            r = report[scene][algo]
+            lines.append(
+                f"| {scene} | {LABELS.get(algo, algo)} | {100 * r['success']:.1f} % | {100 * r['collision']:.1f} % | "
+                f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "
+                f"{r['train_wall_s'] / 60:.0f} min |"
+            )
+    return lines
+
+
+def write_project_table(report: dict[str, dict[str, dict]], path: Path = PROJECT_README) -> bool:
+    """Rewrite the table between ``README_MARKERS`` in ``path`` (atomically); without both markers, in order,
+    leave the file alone, say so and return False (``results.json`` and ``deck_sim/trained/README.md`` are written
+    either way)."""
+    text = path.read_text() if path.exists() else ""
+    start, end = text.find(README_MARKERS[0]), text.find(README_MARKERS[1])
+    if start < 0 or end < start:
+        print(f"warning: {path} has no shipped-table markers {README_MARKERS}; its table was not updated",
+              flush=True)
+        return False
+    head = text[: start + len(README_MARKERS[0])]
+    new = head + "\n" + "\n".join(project_table(report)) + "\n" + text[end:]
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(new)
+    os.replace(tmp, path)
+    return True
 
 
 if __name__ == "__main__":

@@ -147,3 +147,27 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
             action = policy.act(ts.observation)
             assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
             ts = env.step(action)
+
+
+def test_project_readme_table_matches_results_json():
+    """The README's shipped-policies table is the figures of ``results.json``, not a hand copy that can drift
+    (``scripts/train_shipped.py`` rewrites the rows between the two markers)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    start = text.index("<!-- shipped-table: start")
+    end = text.index("<!-- shipped-table: end -->")
+    assert start < end
+    rows = [line for line in text[start:end].splitlines() if line.startswith("| ") and "%" in line]
+    labels = {"MDDPG": "mddpg", "DDPG (no prediction)": "ddpg", "DQN": "dqn", "A2C": "a2c"}
+    seen = set()
+    for line in rows:
+        scene, label, success, collision, timeout, off, steps, wall = (c.strip() for c in line.strip("|").split("|"))
+        record = _shipped_agents()[scene][labels[label]]
+        for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
+            assert cell == f"{100 * record[key]:.1f} %", (scene, label, key)
+        assert int(steps.replace(",", "")) == record["train_steps"], (scene, label)
+        assert wall == f"{record['train_wall_s'] / 60:.0f} min", (scene, label)
+        seen.add((scene, labels[label]))
+    assert seen == {(s, a) for s, agents in _shipped_agents().items() for a in agents}  # every shipped agent, once
+    assert len(rows) == len(seen)
