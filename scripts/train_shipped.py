@@ -4,7 +4,7 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 - ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
   ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks
-  ``tuned-<algo>-with-data+polish+size`` for 160,000 steps) in
+  ``tuned-<algo>-with-data+polish+size``, 160,000 steps on deck 1 and 320,000 on deck 2) in
   ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py`` writes for that arm). DDPG is
   MDDPG without prediction (predictor ``none``), same recipe and budget.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in

@@ -171,3 +171,18 @@ def test_project_readme_table_matches_results_json():
         seen.add((scene, labels[label]))
     assert seen == {(s, a) for s, agents in _shipped_agents().items() for a in agents}  # every shipped agent, once
     assert len(rows) == len(seen)
+
+
+@pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
+def test_shipped_mddpg_and_ddpg_are_runs_of_the_recipe_named_for_them(scene):
+    """``training.config.SHIPPED_RECIPES`` says how the shipped MDDPG and DDPG actors were trained: its recipe and
+    steps must be the shipped files' own (changing the recipe means training and shipping again)."""
+    from deck_sim.policies import shipped_policy_path
+    from training.config import shipped_arm
+
+    for algo in ("mddpg", "ddpg"):
+        record = _shipped_agents()[scene][algo]
+        arm = shipped_arm(scene, algo)
+        meta = LearnedPolicy.load(shipped_policy_path(algo, scene)).meta
+        assert record["recipe"] == arm.recipe, (scene, algo)
+        assert record["train_steps"] == arm.steps == int(meta["config"]["total_steps"]), (scene, algo)
