@@ -14,8 +14,9 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 MDDPG and DDPG of a scene train for the same number of environment steps (``SHIPPED_RECIPES``); DQN and A2C
 for ``SB3_STEPS[scene]`` (the budget of the first shipped actors: 40,000 steps on deck 1 and the square, 60,000
-on deck 2). The decks' DDPG recipe runs 160,000 steps in about the wall-clock time its first recipe took for
-40,000, by collecting four transitions per update instead of two. ``--steps`` sets one budget for every agent.
+on deck 2). The decks' DDPG recipe runs 160,000 steps (deck 1; deck 2 twice that) in about the wall-clock time
+its first recipe took for 40,000, by collecting four transitions per update instead of two. ``--steps`` sets one
+budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 shipped actor (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the one with the
@@ -308,17 +309,25 @@ def write_project_table(report: dict[str, dict[str, dict]], path: Path = PROJECT
     """Rewrite the table between ``README_MARKERS`` in ``path`` (atomically); without both markers, in order,
     leave the file alone, say so and return False (``results.json`` and ``deck_sim/trained/README.md`` are written
     either way)."""
-    text = path.read_text() if path.exists() else ""
-    start, end = text.find(README_MARKERS[0]), text.find(README_MARKERS[1])
-    if start < 0 or end < start:
-        print(f"warning: {path} has no shipped-table markers {README_MARKERS}; its table was not updated",
+    text = path.read_text(encoding="utf-8") if path.exists() else ""
+    if [text.count(m) for m in README_MARKERS] != [1, 1]:
+        print(f"warning: {path} does not hold each shipped-table marker {README_MARKERS} exactly once; its table "
+              "was not updated", flush=True)
+        return False
+    start = text.index(README_MARKERS[0]) + len(README_MARKERS[0])
+    end = text.find(README_MARKERS[1], start)
+    if end < 0:
+        print(f"warning: {path}: the shipped-table end marker comes before its start; its table was not updated",
               flush=True)
         return False
-    head = text[: start + len(README_MARKERS[0])]
-    new = head + "\n" + "\n".join(project_table(report)) + "\n" + text[end:]
+    new = text[:start] + "\n" + "\n".join(project_table(report)) + "\n" + text[end:]
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(new)
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(new, encoding="utf-8")
+        shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return True
 
 

@@ -149,14 +149,25 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
             ts = env.step(action)
 
 
+def _train_shipped():
+    """``scripts/train_shipped.py`` as a module (it is a script, not part of the package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "train_shipped.py"
+    spec = importlib.util.spec_from_file_location("train_shipped", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def test_project_readme_table_matches_results_json():
     """The README's shipped-policies table is the figures of ``results.json``, not a hand copy that can drift
     (``scripts/train_shipped.py`` rewrites the rows between the two markers)."""
-    from pathlib import Path
-
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    start = text.index("<!-- shipped-table: start")
-    end = text.index("<!-- shipped-table: end -->")
+    script = _train_shipped()
+    text = script.PROJECT_README.read_text(encoding="utf-8")
+    assert [text.count(m) for m in script.README_MARKERS] == [1, 1]
+    start, end = (text.index(m) for m in script.README_MARKERS)
     assert start < end
     rows = [line for line in text[start:end].splitlines() if line.startswith("| ") and "%" in line]
     labels = {"MDDPG": "mddpg", "DDPG (no prediction)": "ddpg", "DQN": "dqn", "A2C": "a2c"}
@@ -173,6 +184,28 @@ def test_project_readme_table_matches_results_json():
     assert len(rows) == len(seen)
 
 
+def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_path, capsys):
+    script = _train_shipped()
+    start, end = script.README_MARKERS
+    record = {"success": 0.905, "collision": 0.09, "timeout": 0.005, "off_surface": 0.0, "train_steps": 320_000,
+              "train_wall_s": 3076.8}
+    report = {"deck2": {"mddpg": record}}
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{start}\n| old | row |\n{end}\noutro\n", encoding="utf-8")
+    assert script.write_project_table(report, readme)
+    once = readme.read_text(encoding="utf-8")
+    assert once.startswith(f"intro\n{start}\n| scene | agent |") and once.endswith(f"{end}\noutro\n")
+    assert "| deck2 | MDDPG | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
+    assert "old" not in once
+    assert script.write_project_table(report, readme) and readme.read_text(encoding="utf-8") == once  # idempotent
+    assert not (tmp_path / "README.md.tmp").exists()
+    for broken in ("no markers\n", f"{end}\n{start}\n", f"{start}\n{end}\n{start}\n{end}\n"):
+        readme.write_text(broken, encoding="utf-8")
+        assert not script.write_project_table(report, readme)
+        assert readme.read_text(encoding="utf-8") == broken  # left alone, and said so
+        assert "was not updated" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_shipped_mddpg_and_ddpg_are_runs_of_the_recipe_named_for_them(scene):
     """``training.config.SHIPPED_RECIPES`` says how the shipped MDDPG and DDPG actors were trained: its recipe and
@@ -184,5 +217,6 @@ def test_shipped_mddpg_and_ddpg_are_runs_of_the_recipe_named_for_them(scene):
         record = _shipped_agents()[scene][algo]
         arm = shipped_arm(scene, algo)
         meta = LearnedPolicy.load(shipped_policy_path(algo, scene)).meta
-        assert record["recipe"] == arm.recipe, (scene, algo)
+        assert record["recipe"] == arm.recipe == meta["config"]["extra"]["recipe"], (scene, algo)
+        assert (meta["config"]["eval_every"], meta["config"]["eval_episodes"]) == (arm.eval_every, arm.eval_episodes)
         assert record["train_steps"] == arm.steps == int(meta["config"]["total_steps"]), (scene, algo)

@@ -372,15 +372,15 @@ SHIPPED_RECIPES: dict[str, ShippedArm] = {
     "square": ShippedArm("tuned-{algo}-with-data+polish+near", 160_000, 20_000, 100),
 }
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
-``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of
-``tuned`` and ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on
-the decks, 46-48 min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the
-decks the observation also carries each mover's footprint size (``size``), which the square's pedestrians, all
-0.3 m discs, do not need; on the square it carries the target and the square's edges at a near scale (``near``),
-without which the walker, reading metres at the scale of a 100 m square, walked off it in 28.5 % (MDDPG) and
-29.0 % (DDPG) of the held-out episodes (``docs/training.md``, the square). Deck 2 trains for twice the steps
-(320,000): its MDDPG was still climbing at 160,000, and at 320,000 led its 160,000-step self and DDPG at 320,000
-on both held-out streams (``docs/training.md``, "Twice the steps on deck 2")."""
+``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned`` and
+ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on the decks (deck 2
+trains twice as long, below), 46-48 min per run on the square (two runs sharing the cores, against 23-30 min for
+40,000). On the decks the observation also carries each mover's footprint size (``size``), which the square's
+pedestrians, all 0.3 m discs, do not need; on the square it carries the target and the square's edges at a near
+scale (``near``), without which the walker, reading metres at the scale of a 100 m square, walked off it in 28.5 %
+(MDDPG) and 29.0 % (DDPG) of the held-out episodes (``docs/training.md``, the square). Deck 2 trains for twice the
+steps (320,000): its seed-500 curves were still moving at 160,000, and its MDDPG at 320,000 led its 160,000-step
+self and DDPG at 320,000 on both held-out streams (``docs/training.md``, "Twice the steps on deck 2")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:
