@@ -143,10 +143,29 @@ def locked_report() -> Iterator[dict[str, dict[str, dict]]]:
         fcntl.flock(lock, fcntl.LOCK_EX)
         report = read_report(path)
         yield report
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
-        os.replace(tmp, path)
+        write_atomic(path, json.dumps(report, indent=2, sort_keys=True) + "\n")
         write_readme(report)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` by ``text`` in one step (a reader sees the old file or the new one, never half), keeping
+    the file's permissions; the temporary file is removed if writing fails."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        if path.exists():
+            shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def shipped_records(report: dict[str, dict[str, dict]]) -> Iterator[tuple[str, str, dict]]:
+    """``(scene, algo, record)`` in the tables' order: scenes by name, agents as in ``SHIPPED_ALGOS``."""
+    order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
+    for scene in sorted(report):
+        for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
+            yield scene, algo, report[scene][algo]
 
 
 def read_report(path: Path) -> dict[str, dict[str, dict]]:
@@ -266,23 +285,20 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         " mean reward | path / straight | turning angle | training steps | training time |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
-    for scene in sorted(report):
-        for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
-            r = report[scene][algo]
-            # (records from before the recipe was written down: the first recipe of each kind of agent)
-            recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
-            # which actor the file is: its own record says
-            polished = LearnedPolicy.load(TRAINED_DIR / f"{scene}_{algo}.npz").meta.get("polished", False)
-            actor = "final, fitted" if polished else f"best evaluation ({r['selected_at_step']} steps)"
-            lines.append(
-                f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {actor} | {r['episodes']} | "
-                f"{100 * r['success']:.1f} % | "
-                f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
-                f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
-                f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"
-            )
-    (TRAINED_DIR / "README.md").write_text("\n".join(lines) + "\n")
+    for scene, algo, r in shipped_records(report):
+        # (records from before the recipe was written down: the first recipe of each kind of agent)
+        recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
+        # which actor the file is: its own record says
+        polished = LearnedPolicy.load(TRAINED_DIR / f"{scene}_{algo}.npz").meta.get("polished", False)
+        actor = "final, fitted" if polished else f"best evaluation ({r['selected_at_step']} steps)"
+        lines.append(
+            f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {actor} | {r['episodes']} | "
+            f"{100 * r['success']:.1f} % | "
+            f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
+            f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
+            f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"
+        )
+    write_atomic(TRAINED_DIR / "README.md", "\n".join(lines) + "\n")
     write_project_table(report)
 
 
@@ -293,15 +309,12 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
         " training time (under load) |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    order = {a: i for i, a in enumerate(SHIPPED_ALGOS)}
-    for scene in sorted(report):
-        for algo in sorted(report[scene], key=lambda a: order.get(a, len(order))):
-            r = report[scene][algo]
-            lines.append(
-                f"| {scene} | {LABELS.get(algo, algo)} | {100 * r['success']:.1f} % | {100 * r['collision']:.1f} % | "
-                f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "
-                f"{r['train_wall_s'] / 60:.0f} min |"
-            )
+    for scene, algo, r in shipped_records(report):
+        lines.append(
+            f"| {scene} | {LABELS.get(algo, algo)} | {100 * r['success']:.1f} % | {100 * r['collision']:.1f} % | "
+            f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "
+            f"{r['train_wall_s'] / 60:.0f} min |"
+        )
     return lines
 
 
@@ -320,14 +333,7 @@ def write_project_table(report: dict[str, dict[str, dict]], path: Path = PROJECT
         print(f"warning: {path}: the shipped-table end marker comes before its start; its table was not updated",
               flush=True)
         return False
-    new = text[:start] + "\n" + "\n".join(project_table(report)) + "\n" + text[end:]
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(new, encoding="utf-8")
-        shutil.copymode(path, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_atomic(path, text[:start] + "\n" + "\n".join(project_table(report)) + "\n" + text[end:])
     return True
 
 
