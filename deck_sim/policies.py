@@ -5,7 +5,8 @@ observation's predicted mover positions: the ``oracle`` predictor shows it the m
 MPC forecast); ``apf``, ``astar`` and ``mpc`` are the classical references of ``deck_sim.control.planners`` on
 the same view (the evaluation runs them with the MPC predictor); ``random`` and ``zero`` are references.
 ``LearnedPolicy`` runs an actor exported by ``training``
-(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone; ``mddpg``, ``ddpg``, ``dqn`` and ``a2c``
+(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone, ``EnsemblePolicy`` several such actors
+by the mean of their actions (``load_actor`` reads either file); ``mddpg``, ``ddpg``, ``dqn`` and ``a2c``
 name the policies shipped in ``deck_sim/trained/`` for the environment's scene. The DQN and A2C files are the
 stable-baselines3 networks exported to the same format (``training.baselines.export_sb3``), so evaluating them
 needs neither stable-baselines3 nor ``training``.
@@ -17,7 +18,7 @@ import json
 import os
 import re
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -87,6 +88,8 @@ ACTOR_FORMAT = "deck_sim.actor/1"
 """DDPG's actors: ReLU hidden layers, a tanh output of 2 (implicit ``activation`` and ``head``)."""
 ACTOR_FORMAT_V2 = "deck_sim.actor/2"
 """Any MLP policy: ``meta`` names the hidden ``activation`` (``ACTIVATIONS``) and the ``head`` (``HEADS``)."""
+ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
+"""Several actors of format 1 or 2 in one file, acting by the mean of their actions (``EnsemblePolicy``)."""
 ACTIVATIONS = ("relu", "tanh")
 HEADS = {
     "tanh": "mu(s) = tanh(MLP(s)), 2 outputs (DDPG's actor)",
@@ -116,10 +119,16 @@ class LearnedPolicy:
     def __init__(self, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], source: str = "<arrays>") -> None:
         self.meta = dict(meta)
         self.source = source
+        self.arrays = {k: np.asarray(v) for k, v in arrays.items()}  # as given (an ensemble file stores them again)
         fmt = self.meta.get("format")
+        if fmt == ENSEMBLE_FORMAT:
+            raise PolicyFileError(
+                f"{source}: an ensemble of {len(self.meta.get('members') or [])} actors, not one actor; read it with "
+                "deck_sim.policies.load_actor (or EnsemblePolicy.load)"
+            )
         if fmt not in (ACTOR_FORMAT, ACTOR_FORMAT_V2):
             raise PolicyFileError(
-                f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r} or {ACTOR_FORMAT_V2!r}"
+                f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r}, {ACTOR_FORMAT_V2!r} or {ENSEMBLE_FORMAT!r}"
             )
         try:
             self.keys = tuple(self.meta["observation_keys"])
@@ -162,21 +171,9 @@ class LearnedPolicy:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> LearnedPolicy:
-        """Read an actor file written by ``training`` (``actor.npz``); ``PolicyFileError`` if it cannot."""
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except FileNotFoundError as err:
-            raise PolicyFileError(f"{path}: no such actor file") from err
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-            raise PolicyFileError(f"{path}: not a readable actor file ({err})") from err
-        if "meta" not in arrays:
-            raise PolicyFileError(f"{path}: not a deck_sim actor file (no 'meta' record)")
-        try:
-            meta = json.loads(str(arrays.pop("meta")))
-        except json.JSONDecodeError as err:
-            raise PolicyFileError(f"{path}: the 'meta' record is not JSON ({err})") from err
+        """Read an actor file written by ``training`` (``actor.npz``); ``PolicyFileError`` if it cannot (an
+        ensemble file included: ``load_actor`` reads either kind)."""
+        arrays, meta = _read_actor_file(path)
         return cls(arrays, meta, source=str(path))
 
     @property
@@ -251,6 +248,138 @@ class LearnedPolicy:
         return self.act_flat(self.flatten(observation))
 
 
+class EnsemblePolicy:
+    """Several actors that read one observation, acting together: the mean of their actions.
+
+    Averaging the actions of actors trained from different seeds cancels part of each one's own errors (on deck 2
+    the mean of two MDDPG seeds' actors reached the goal more often than either alone: ``docs/training.md``). Every
+    member must be a ``LearnedPolicy`` with a continuous head (``tanh`` or ``clip``: a mean of DQN's argmax rows
+    is not DQN's policy) trained on the same observation keys and shapes and the same ``scene_overrides``, so one
+    environment serves them all; the mean of actions in [-1, 1] stays in [-1, 1].
+
+    Its file (``save``; format ``deck_sim.ensemble/1``) holds each member's arrays under ``m<i>/`` and a ``meta``
+    record whose ``members`` list the members' own records; its other fields are the first member's (scene,
+    algorithm, predictor, observation, configuration), so code that reads one actor's record reads an ensemble's.
+    """
+
+    def __init__(self, members: Sequence[LearnedPolicy], source: str = "<members>") -> None:
+        self.members = list(members)
+        self.source = source
+        if len(self.members) < 2:
+            raise PolicyFileError(f"{source}: an ensemble needs two or more actors, got {len(self.members)}")
+        first = self.members[0]
+        for i, m in enumerate(self.members):
+            if m.head not in ("tanh", "clip"):
+                raise PolicyFileError(f"{source}: member {i} ({m.source}) has head {m.head!r}; only actors with a "
+                                      "continuous action (head 'tanh' or 'clip') can be averaged")
+            if (m.keys, m.shapes) != (first.keys, first.shapes):
+                raise PolicyFileError(f"{source}: member {i} ({m.source}) reads observation {dict(m.shapes)}, "
+                                      f"member 0 ({first.source}) reads {dict(first.shapes)}")
+            if m.scene_overrides != first.scene_overrides:
+                raise PolicyFileError(f"{source}: member {i} ({m.source}) needs scene fields {m.scene_overrides}, "
+                                      f"member 0 ({first.source}) needs {first.scene_overrides}")
+        self.keys, self.shapes = first.keys, first.shapes
+        self.meta = {**first.meta, "format": ENSEMBLE_FORMAT, "combine": "mean",
+                     "members": [dict(m.meta) for m in self.members]}
+
+    @classmethod
+    def from_arrays(
+        cls, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], source: str = "<arrays>"
+    ) -> EnsemblePolicy:
+        """The ensemble stored as ``save`` writes it (member ``i``'s arrays under ``m<i>/``)."""
+        if meta.get("format") != ENSEMBLE_FORMAT:
+            raise PolicyFileError(f"{source}: format {meta.get('format')!r}, expected {ENSEMBLE_FORMAT!r}")
+        records = meta.get("members")
+        if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+            raise PolicyFileError(f"{source}: the ensemble's 'members' record is not a list of actor records")
+        if meta.get("combine", "mean") != "mean":
+            raise PolicyFileError(f"{source}: combine {meta.get('combine')!r}, expected 'mean'")
+        members = []
+        for i, record in enumerate(records):
+            prefix = f"m{i}/"
+            mine = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+            members.append(LearnedPolicy(mine, record, source=f"{source}, member {i}"))
+        ensemble = cls(members, source=source)
+        stray = sorted(k for k in arrays if not (re.match(r"m(\d+)/", k) and int(k[1:k.index("/")]) < len(records)))
+        if stray:
+            raise PolicyFileError(f"{source}: arrays {stray[:5]} belong to no member of the ensemble")
+        return ensemble
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> EnsemblePolicy:
+        """Read an ensemble file written by ``save``; ``PolicyFileError`` if it cannot."""
+        arrays, meta = _read_actor_file(path)
+        return cls.from_arrays(arrays, meta, source=str(path))
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the ensemble as one weights-only ``.npz`` (compressed), atomically: a reader finds the old file or
+        the new one, never a part; an existing file is untouched if writing fails."""
+        path = Path(path)
+        arrays = {f"m{i}/{k}": v for i, m in enumerate(self.members) for k, v in m.arrays.items()}
+        tmp = path.with_name(path.name + ".tmp.npz")
+        try:
+            np.savez_compressed(tmp, meta=np.array(json.dumps(self.meta)), **arrays)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return path
+
+    @property
+    def predictor(self) -> str:
+        """The predictor the members were trained on."""
+        return self.members[0].predictor
+
+    @property
+    def scene_overrides(self) -> dict[str, Any]:
+        """The scene fields the members need (the same for all: ``LearnedPolicy.scene_overrides``)."""
+        return self.members[0].scene_overrides
+
+    def reset(self) -> None:
+        """Actors have no memory."""
+
+    def flatten(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The flat observation the members read (``LearnedPolicy.flatten``)."""
+        return self.members[0].flatten(observation)
+
+    def act_flat(self, x: np.ndarray) -> np.ndarray:
+        """The members' mean action (..., 2) for flat observations (..., dim)."""
+        return np.mean([m.act_flat(x) for m in self.members], axis=0)
+
+    def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The members' mean action (2,) for one observation dict."""
+        return self.act_flat(self.flatten(observation))
+
+
+def _read_actor_file(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays and the JSON ``meta`` record of an actor or ensemble file; ``PolicyFileError`` if unreadable."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except FileNotFoundError as err:
+        raise PolicyFileError(f"{path}: no such actor file") from err
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise PolicyFileError(f"{path}: not a readable actor file ({err})") from err
+    if "meta" not in arrays:
+        raise PolicyFileError(f"{path}: not a deck_sim actor file (no 'meta' record)")
+    try:
+        meta = json.loads(str(arrays.pop("meta")))
+    except json.JSONDecodeError as err:
+        raise PolicyFileError(f"{path}: the 'meta' record is not JSON ({err})") from err
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f"{path}: the 'meta' record is not a JSON object")
+    return arrays, meta
+
+
+def load_actor(path: str | os.PathLike[str]) -> LearnedPolicy | EnsemblePolicy:
+    """The learned policy in ``path``: one actor (``LearnedPolicy``) or an ensemble (``EnsemblePolicy``), as its
+    ``meta`` record's format says; ``PolicyFileError`` naming the problem if the file cannot serve."""
+    arrays, meta = _read_actor_file(path)
+    if meta.get("format") == ENSEMBLE_FORMAT:
+        return EnsemblePolicy.from_arrays(arrays, meta, source=str(path))
+    return LearnedPolicy(arrays, meta, source=str(path))
+
+
 SHIPPED_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
 CLASSICAL = {"apf": APFPlanner, "astar": AStarPlanner, "mpc": MPCPlanner}
 """The classical references: planners on the task's ``planner_view`` that need no training."""
@@ -297,7 +426,7 @@ def policy_overrides(name: str, scene: str) -> dict[str, Any]:
     if name in CLASSICAL:
         return {"episode__predictor": REFERENCE_PREDICTOR}
     path = policy_file(name, scene)
-    return LearnedPolicy.load(path).scene_overrides if path is not None else {}
+    return load_actor(path).scene_overrides if path is not None else {}
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
@@ -314,5 +443,5 @@ def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
         return ZeroPolicy()
     path = policy_file(name, env.task.spec.name)
     if path is not None:
-        return LearnedPolicy.load(path)
+        return load_actor(path)
     raise ValueError(f"unknown policy {name!r}; expected one of {', '.join(POLICY_NAMES)} or an actor .npz file")

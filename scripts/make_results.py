@@ -102,7 +102,8 @@ def load_scene_report(folder: Path, cfg: EvalConfig, key: str) -> EvalResults | 
 
 def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dict[str, list[str]]) -> list[str]:
     lines = [
-        "| agent | scene | training seeds | training steps | training wall time | evaluation episodes |",
+        "| agent | scene | training seeds | training steps (each seed) | training wall time (all seeds) |"
+        " evaluation episodes |",
         "|---|---|---:|---:|---:|---:|",
     ]
     for scene in scenes:
@@ -113,8 +114,10 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
                 fig = training_figures(scene, agent) or {}
                 steps = f"{fig['train_steps']:,}" if "train_steps" in fig else "?"
                 wall = f"{fig['train_wall_s'] / 60:.0f} min" if "train_wall_s" in fig else "?"
-                seed = fig.get("seed", "?")
-                lines.append(f"| {agent} | {scene} | 1 (seed {seed}) | {steps} | {wall} | {episodes} |")
+                seeds = fig.get("seeds") or [fig.get("seed", "?")]
+                runs = (f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; the mean of their actors' actions)"
+                        if len(seeds) > 1 else f"1 (seed {seeds[0]})")
+                lines.append(f"| {agent} | {scene} | {runs} | {steps} | {wall} | {episodes} |")
             else:
                 lines.append(f"| {agent} | {scene} | none (no training) | - | - | {episodes} |")
     return lines
@@ -214,7 +217,10 @@ def main() -> None:
                     episodes = sorted({r["episodes"] for r in csv.DictReader(f)})
                 stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
                 shown = run.relative_to(ROOT) if run.is_absolute() and run.is_relative_to(ROOT) else run
-                how.append(f"{agent}: `{shown}/eval.csv`, {'/'.join(episodes)} episodes of {stream} per point")
+                others = sorted(d.name for d in run.glob("seed*") if (d / "eval.csv").exists())
+                also = f" (the run of seed {c.get('seed', 0)}; {', '.join(others)} of the shipped ensemble in its " \
+                       f"`seed*/` folders)" if others else ""
+                how.append(f"{agent}: `{shown}/eval.csv`{also}, {'/'.join(episodes)} episodes of {stream} per point")
             curve_lines.append(
                 f"*{scene}: held-out average reward and success against training steps ({'; '.join(how)}).*"
             )

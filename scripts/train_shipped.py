@@ -4,9 +4,11 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 - ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
   ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks
-  ``tuned-<algo>-with-data+polish+size``, 160,000 steps on deck 1 and 320,000 on deck 2) in
-  ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py`` writes for that arm). DDPG is
-  MDDPG without prediction (predictor ``none``), same recipe and budget.
+  ``tuned-<algo>-with-data+polish+size``, 160,000 steps on deck 1 and 320,000 on deck 2) per seed of the recipe's
+  ``seeds`` (or ``--seeds``), each in ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py``
+  writes for that arm, so seeds trained there in parallel are found finished). DDPG is MDDPG without prediction
+  (predictor ``none``), same recipe, seeds and budget. With several seeds the shipped file is an ensemble
+  (``deck_sim.policies.EnsemblePolicy``): the seeds' actors acting by the mean of their actions.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
   ``--out/<scene>-<algo>-seed<seed>``, held-out evaluation every 10,000 steps on 50 episodes; the networks are
   exported to numpy (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor
@@ -19,14 +21,15 @@ its first recipe took for 40,000, by collecting four transitions per update inst
 budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
-shipped actor (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the one with the
-best periodic held-out evaluation on the seed-500 stream) is then measured on ``--episodes`` further
-held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a training,
-demonstration or selection episode), and copied to ``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few
-hundred KiB). The figures go to ``deck_sim/trained/results.json`` (``{scene: {algo: figures}}``) and
-``deck_sim/trained/README.md``, written by this script, never by hand, as is the table between the
-``README_MARKERS`` of the project's README; the run's held-out evaluation log and
-config go to ``deck_sim/trained/logs/<scene>_<algo>/`` (the learning curves of ``docs/results.md``). An agent
+shipped actor of each run (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the
+one with the best periodic held-out evaluation on the seed-500 stream) is copied, or the runs' actors joined, to
+``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few hundred KiB per actor) and measured on ``--episodes``
+further held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a
+training, demonstration or selection episode). The figures go to ``deck_sim/trained/results.json``
+(``{scene: {algo: figures}}``) and ``deck_sim/trained/README.md``, written by this script, never by hand, as is
+the table between the ``README_MARKERS`` of the project's README; the runs' held-out evaluation logs and configs
+go to ``deck_sim/trained/logs/<scene>_<algo>/`` (``ship_logs``; the learning curves of
+``docs/results.md``), and the training time recorded is the sum of the runs' wall-clock times. An agent
 already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
 again without training).
 
@@ -38,7 +41,7 @@ Long work: run it in the background (``nohup nice -n 10 python scripts/train_shi
 never in tests.
 
     python scripts/train_shipped.py [--scenes deck1,deck2,square] [--algos mddpg,ddpg,dqn,a2c] [--steps N]
-                                    [--seed 0] [--episodes 200] [--redo | --evaluate-only]
+                                    [--seeds 0,1] [--episodes 200] [--redo | --evaluate-only]
 """
 
 from __future__ import annotations
@@ -63,7 +66,14 @@ from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
-from deck_sim.policies import SHIPPED_ALGOS, TRAINED_DIR, LearnedPolicy, shipped_log_dir  # noqa: E402
+from deck_sim.policies import (  # noqa: E402
+    SHIPPED_ALGOS,
+    TRAINED_DIR,
+    EnsemblePolicy,
+    LearnedPolicy,
+    load_actor,
+    shipped_log_dir,
+)
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.config import shipped_arm  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
@@ -80,25 +90,52 @@ README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.p
 
 
 def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
-    """The actor on ``episodes`` consecutive episodes of ``deck_sim.load(scene, seed=1000)``."""
-    policy = LearnedPolicy.load(actor)
+    """The actor (or ensemble) on ``episodes`` consecutive episodes of ``deck_sim.load(scene, seed=1000)``."""
+    policy = load_actor(actor)
     env = deck_sim.load(scene, seed=HELD_OUT_SEED, **policy.scene_overrides)  # its predictor and observation
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
 
 
-def ship_logs(run: Path, scene: str, algo: str) -> Path:
-    """Copy the run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
-    <scene>_<algo>/`` beside the shipped actor (a few KiB), so that ``scripts/make_results.py`` draws its learning
-    curve on a checkout without the run folder."""
+def ship_logs(runs: list[Path], scene: str, algo: str) -> Path:
+    """Copy each run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
+    <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
+    learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
+    further seeds) in ``seed<k>/`` below it (``member_logs``)."""
     logs = shipped_log_dir(algo, scene)
-    if not (run / "eval.csv").exists():
-        return logs
-    logs.mkdir(parents=True, exist_ok=True)
-    for name in ("eval.csv", "config.json"):
-        (logs / name).unlink(missing_ok=True)  # nothing of an earlier shipped run may stay beside the new log
-        if (run / name).exists():
-            shutil.copyfile(run / name, logs / name)
+    for old in logs.glob("seed*"):  # nothing of an earlier shipped run may stay beside the new logs
+        if old.is_dir():
+            shutil.rmtree(old)
+    for i, run in enumerate(runs):
+        folder = logs if i == 0 else logs / run.name.rpartition("-")[2]
+        for name in ("eval.csv", "config.json"):
+            (folder / name).unlink(missing_ok=True)
+            if (run / name).exists():
+                folder.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(run / name, folder / name)
     return logs
+
+
+def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
+    """The training seeds of a shipped file, from its ``meta`` record (each member's, for an ensemble)."""
+    return tuple(int(m["config"]["seed"]) for m in meta.get("members") or [meta])
+
+
+def member_logs(scene: str, algo: str) -> list[Path]:
+    """The shipped log folders of ``scene``'s ``algo``, first run first (``ship_logs``), those with an ``eval.csv``."""
+    logs = shipped_log_dir(algo, scene)
+    extra = sorted((d for d in logs.glob("seed*") if d.is_dir()), key=lambda d: int(d.name[4:] or 0))
+    return [d for d in (logs, *extra) if (d / "eval.csv").exists()]
+
+
+def ship(runs: list[Path], dest: Path) -> None:
+    """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``), or with several
+    runs an ``EnsemblePolicy`` of their shipped actors."""
+    if len(runs) == 1:
+        tmp = dest.with_name(dest.name + ".tmp")
+        shutil.copyfile(shipped_actor(runs[0]), tmp)
+        os.replace(tmp, dest)
+    else:
+        EnsemblePolicy([LearnedPolicy.load(shipped_actor(r)) for r in runs], source=str(dest)).save(dest)
 
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
@@ -110,6 +147,11 @@ def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
 
 def default_steps(scene: str, algo: str) -> int:
     return shipped_arm(scene, algo).steps if algo in ("mddpg", "ddpg") else SB3_STEPS.get(scene, 60_000)
+
+
+def default_seeds(scene: str, algo: str) -> tuple[int, ...]:
+    """The training seeds behind the shipped ``algo`` of ``scene``: ``SHIPPED_RECIPES``'s, one (0) for SB3."""
+    return shipped_arm(scene, algo).seeds if algo in ("mddpg", "ddpg") else (0,)
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
@@ -171,7 +213,12 @@ def shipped_records(report: dict[str, dict[str, dict]]) -> Iterator[tuple[str, s
 def read_report(path: Path) -> dict[str, dict[str, dict]]:
     """``{scene: {algo: figures}}``; an older file with one MDDPG record per scene is read as such."""
     report = json.loads(path.read_text()) if path.exists() else {}
-    return {scene: ({"mddpg": r} if "success" in r else r) for scene, r in report.items()}
+    report = {scene: ({"mddpg": r} if "success" in r else r) for scene, r in report.items()}
+    for agents in report.values():  # records from before ensembles name one ``seed``
+        for r in agents.values():
+            if "seeds" not in r and "seed" in r:
+                r["seeds"] = [r.pop("seed")]
+    return report
 
 
 def main() -> None:
@@ -180,7 +227,9 @@ def main() -> None:
     parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
     parser.add_argument("--steps", type=int, default=None,
                         help="training steps for every agent (default: SHIPPED_RECIPES, SB3_STEPS)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", default=None,
+                        help="training seeds, comma-separated (default: SHIPPED_RECIPES's for MDDPG and DDPG, 0 for "
+                             "DQN and A2C); several seeds ship the mean action of their actors (MDDPG and DDPG only)")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
     mode = parser.add_mutually_exclusive_group()
@@ -197,6 +246,14 @@ def main() -> None:
     unknown = sorted(set(algos) - set(SHIPPED_ALGOS))
     if unknown:
         raise SystemExit(f"unknown agents {unknown}; expected some of {', '.join(SHIPPED_ALGOS)}")
+    try:
+        seeds_given = tuple(int(x) for x in args.seeds.split(",")) if args.seeds else None
+    except ValueError:
+        raise SystemExit(f"--seeds {args.seeds!r}: expected comma-separated integers") from None
+    if seeds_given is not None and len(set(seeds_given)) < len(seeds_given):
+        raise SystemExit(f"--seeds {args.seeds!r}: each seed once")
+    if seeds_given is not None and len(seeds_given) > 1 and {"dqn", "a2c"} & set(algos):
+        raise SystemExit("--seeds: several seeds make an ensemble of MDDPG or DDPG actors; DQN and A2C ship one run")
     TRAINED_DIR.mkdir(exist_ok=True)
     out = Path(args.out)
     shipped = read_report(TRAINED_DIR / "results.json")
@@ -207,27 +264,30 @@ def main() -> None:
             if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}):
                 print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
                 continue
-            run = run_folder(out, scene, algo, args.seed)
-            cost = 0 if args.evaluate_only or (run / "actor.npz").exists() else 1 if algo in ("dqn", "a2c") else 2
-            work.append((cost, len(work), scene, algo, run, dest))
-    for _, _, scene, algo, run, dest in sorted(work):
+            seeds = seeds_given or default_seeds(scene, algo)
+            runs = [run_folder(out, scene, algo, seed) for seed in seeds]
+            todo = sum(not (r / "actor.npz").exists() for r in runs)
+            cost = 0 if args.evaluate_only or not todo else 1 if algo in ("dqn", "a2c") else 2
+            work.append((cost, len(work), scene, algo, seeds, runs, dest))
+    for _, _, scene, algo, seeds, runs, dest in sorted(work):
         steps = args.steps if args.steps is not None else default_steps(scene, algo)
         if args.evaluate_only:
             if not dest.exists():
                 raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
         else:
-            train(run, scene, algo, steps, args.seed, fields)
-            tmp = dest.with_name(dest.name + ".tmp")
-            shutil.copyfile(shipped_actor(run), tmp)
-            os.replace(tmp, dest)
-            ship_logs(run, scene, algo)
+            for seed, run in zip(seeds, runs, strict=True):
+                train(run, scene, algo, steps, seed, fields)
+            ship(runs, dest)
+            ship_logs(runs, scene, algo)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
-        meta = LearnedPolicy.load(dest).meta
-        # the training time from the log shipped with the actor (a run folder may hold a newer, unshipped run),
-        # else from the run's log, else as last recorded (``--evaluate-only`` without the run folder keeps it)
-        log = next((d for d in (shipped_log_dir(algo, scene), run) if (d / "eval.csv").exists()), None)
-        wall = _train_wall(log) if log else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
+        meta = load_actor(dest).meta
+        seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
+        # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
+        # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
+        logs = member_logs(scene, algo) or [r for r in runs if (r / "eval.csv").exists()]
+        walls = [_train_wall(d) for d in logs]
+        wall = sum(walls) if walls else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
         record = {
             "algo": algo,
             "episodes": args.episodes,
@@ -245,7 +305,7 @@ def main() -> None:
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),
             "train_wall_s": wall,
-            "seed": args.seed,
+            "seeds": list(seeds),
             "file_kib": dest.stat().st_size / 1024,
             "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
         }
@@ -281,18 +341,22 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
         "periodic evaluations included, while other work shared the machine; `machine` in `results.json` names",
         "the machine of the held-out measurement, which `--evaluate-only` repeats without training.",
         "",
-        "| scene | agent | recipe | actor | held-out episodes | success | collision | timeout | left the deck |"
-        " mean reward | path / straight | turning angle | training steps | training time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | agent | recipe | training seeds | actor | held-out episodes | success | collision | timeout |"
+        " left the deck | mean reward | path / straight | turning angle | training steps (each seed) |"
+        " training time (all seeds) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
         # (records from before the recipe was written down: the first recipe of each kind of agent)
         recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
         # which actor the file is: its own record says
-        polished = LearnedPolicy.load(TRAINED_DIR / f"{scene}_{algo}.npz").meta.get("polished", False)
-        actor = "final, fitted" if polished else f"best evaluation ({r['selected_at_step']} steps)"
+        meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
+        actor = "final, fitted" if meta.get("polished", False) else f"best evaluation ({r['selected_at_step']} steps)"
+        if meta.get("members"):
+            actor = f"mean action of {len(meta['members'])} actors, each {actor}"
+        seeds = ", ".join(map(str, r.get("seeds", [])))
         lines.append(
-            f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {actor} | {r['episodes']} | "
+            f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {seeds} | {actor} | {r['episodes']} | "
             f"{100 * r['success']:.1f} % | "
             f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
             f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
@@ -305,13 +369,16 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
 def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
     """The project README's shipped-policies table: held-out rates, training steps and wall-clock minutes."""
     lines = [
-        "| scene | agent | success | collision | timeout | left the deck / square | training steps |"
-        " training time (under load) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| scene | agent | training seeds | success | collision | timeout | left the deck / square |"
+        " training steps (each seed) | training time (all seeds, under load) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
+        seeds = r.get("seeds", [])
+        runs = f"{len(seeds)} (mean action)" if len(seeds) > 1 else f"{len(seeds)}"
         lines.append(
-            f"| {scene} | {LABELS.get(algo, algo)} | {100 * r['success']:.1f} % | {100 * r['collision']:.1f} % | "
+            f"| {scene} | {LABELS.get(algo, algo)} | {runs} | {100 * r['success']:.1f} % | "
+            f"{100 * r['collision']:.1f} % | "
             f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "
             f"{r['train_wall_s'] / 60:.0f} min |"
         )

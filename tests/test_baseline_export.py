@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import deck_sim
-from deck_sim.policies import LearnedPolicy, PolicyFileError, make_policy
+from deck_sim.policies import EnsemblePolicy, LearnedPolicy, PolicyFileError, load_actor, make_policy
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
 
@@ -173,8 +173,11 @@ def test_project_readme_table_matches_results_json():
     labels = {"MDDPG": "mddpg", "DDPG (no prediction)": "ddpg", "DQN": "dqn", "A2C": "a2c"}
     seen = set()
     for line in rows:
-        scene, label, success, collision, timeout, off, steps, wall = (c.strip() for c in line.strip("|").split("|"))
+        cells = (c.strip() for c in line.strip("|").split("|"))
+        scene, label, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
+        n = len(record["seeds"])
+        assert runs == (f"{n} (mean action)" if n > 1 else "1"), (scene, label)
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
             assert cell == f"{100 * record[key]:.1f} %", (scene, label, key)
         assert int(steps.replace(",", "")) == record["train_steps"], (scene, label)
@@ -188,14 +191,14 @@ def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_pat
     script = _train_shipped()
     start, end = script.README_MARKERS
     record = {"success": 0.905, "collision": 0.09, "timeout": 0.005, "off_surface": 0.0, "train_steps": 320_000,
-              "train_wall_s": 3076.8}
+              "train_wall_s": 3076.8, "seeds": [0, 1]}
     report = {"deck2": {"mddpg": record}}
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{start}\n| old | row |\n{end}\noutro\n", encoding="utf-8")
     assert script.write_project_table(report, readme)
     once = readme.read_text(encoding="utf-8")
     assert once.startswith(f"intro\n{start}\n| scene | agent |") and once.endswith(f"{end}\noutro\n")
-    assert "| deck2 | MDDPG | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
+    assert "| deck2 | MDDPG | 2 (mean action) | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
     assert "old" not in once
     assert script.write_project_table(report, readme) and readme.read_text(encoding="utf-8") == once  # idempotent
     assert not (tmp_path / "README.md.tmp").exists()
@@ -216,7 +219,52 @@ def test_shipped_mddpg_and_ddpg_are_runs_of_the_recipe_named_for_them(scene):
     for algo in ("mddpg", "ddpg"):
         record = _shipped_agents()[scene][algo]
         arm = shipped_arm(scene, algo)
-        meta = LearnedPolicy.load(shipped_policy_path(algo, scene)).meta
-        assert record["recipe"] == arm.recipe == meta["config"]["extra"]["recipe"], (scene, algo)
-        assert (meta["config"]["eval_every"], meta["config"]["eval_episodes"]) == (arm.eval_every, arm.eval_episodes)
-        assert record["train_steps"] == arm.steps == int(meta["config"]["total_steps"]), (scene, algo)
+        policy = load_actor(shipped_policy_path(algo, scene))
+        members = policy.members if isinstance(policy, EnsemblePolicy) else [policy]
+        assert tuple(record["seeds"]) == arm.seeds == tuple(m.meta["config"]["seed"] for m in members), (scene, algo)
+        for meta in (m.meta for m in members):  # every run behind the file is a run of the recipe
+            assert record["recipe"] == arm.recipe == meta["config"]["extra"]["recipe"], (scene, algo)
+            assert (meta["config"]["eval_every"], meta["config"]["eval_episodes"]) == (arm.eval_every,
+                                                                                       arm.eval_episodes)
+            assert record["train_steps"] == arm.steps == int(meta["config"]["total_steps"]), (scene, algo)
+            assert meta["polished"], (scene, algo)  # each run's final, fitted actor (training.loop.shipped_actor)
+
+
+def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeypatch):
+    """``scripts/train_shipped.py`` with two seeds: the file is the runs' actors averaged, each run's log is kept
+    (the first beside the file's name, the other in ``seed<k>/``), a stale log of an earlier ensemble goes, and
+    the training time is the runs' sum."""
+    from deck_sim.policies import shipped_policy_path
+
+    script = _train_shipped()
+    actor = load_actor(shipped_policy_path("ddpg", "deck1"))
+    actor = actor.members[0] if isinstance(actor, EnsemblePolicy) else actor
+    runs = []
+    for seed, wall in ((0, 600.0), (3, 900.0)):
+        run = tmp_path / "runs" / f"deck1-tuned-ddpg-with-data+polish+size-seed{seed}"
+        run.mkdir(parents=True)
+        arrays = {k: (v * (1.0 + 0.01 * seed)).astype(v.dtype) if k.startswith("w") else v
+                  for k, v in actor.arrays.items()}
+        meta = {**actor.meta, "polished": True, "config": {**actor.meta["config"], "seed": seed}}
+        np.savez(run / "actor.npz", meta=np.array(json.dumps(meta)), **arrays)
+        (run / "eval.csv").write_text(f"step,wall_s,success\n1000,{wall / 2},0.5\n2000,{wall},0.7\n")
+        (run / "config.json").write_text(json.dumps({"seed": seed}))
+        runs.append(run)
+    logs = tmp_path / "logs" / "deck1_ddpg"
+    (logs / "seed9").mkdir(parents=True)
+    (logs / "seed9" / "eval.csv").write_text("step,wall_s\n1,1\n")  # an earlier ensemble's third run
+    monkeypatch.setattr(script, "shipped_log_dir", lambda algo, scene: tmp_path / "logs" / f"{scene}_{algo}")
+    dest = tmp_path / "deck1_ddpg.npz"
+    script.ship(runs, dest)
+    script.ship_logs(runs, "deck1", "ddpg")
+    shipped = load_actor(dest)
+    assert isinstance(shipped, EnsemblePolicy) and script.file_seeds(shipped.meta) == (0, 3)
+    assert (logs / "eval.csv").read_text() == (runs[0] / "eval.csv").read_text()
+    assert (logs / "seed3" / "config.json").read_text() == (runs[1] / "config.json").read_text()
+    assert not (logs / "seed9").exists()
+    assert script.member_logs("deck1", "ddpg") == [logs, logs / "seed3"]
+    assert sum(script._train_wall(d) for d in script.member_logs("deck1", "ddpg")) == 1500.0
+    script.ship(runs[:1], dest)  # one run: its actor file itself
+    assert dest.read_bytes() == (runs[0] / "actor.npz").read_bytes()
+    assert script.file_seeds(load_actor(dest).meta) == (0,)
+    assert not list(tmp_path.glob("*.tmp*"))

@@ -490,6 +490,20 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ensemble(args: argparse.Namespace) -> int:
+    from deck_sim.policies import EnsemblePolicy, LearnedPolicy
+
+    out = Path(args.out)
+    if any(Path(a).resolve() == out.resolve() for a in args.actors):
+        raise ValueError(f"--out {out} is one of the actors it would be made of; write the ensemble elsewhere")
+    ensemble = EnsemblePolicy([LearnedPolicy.load(a) for a in args.actors], source=str(out))
+    ensemble.save(out)
+    meta = ensemble.meta
+    print(f"wrote {out}: {len(ensemble.members)} {meta.get('algo', '?')} actors of scene {meta.get('scene', '?')!r} "
+          f"(predictor {ensemble.predictor}), acting by their mean action; {out.stat().st_size / 1024:.0f} KiB")
+    return 0
+
+
 def _register_log_commands(sub: argparse._SubParsersAction) -> None:
     """``deck-sim log info|plot|video|export|recover FILE``."""
     log = sub.add_parser("log", help="read an episode log (MCAP): info, plot, video, export, recover")
@@ -607,6 +621,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/eval", help="results folder (default runs/eval)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("ensemble", help="join actor files into one policy that acts by the mean of their actions")
+    p.add_argument("actors", nargs="+", help="two or more actor .npz files (deck-sim train's actor.npz), one "
+                                             "observation and scene fields")
+    p.add_argument("--out", required=True, help="the ensemble .npz to write (an existing file is replaced)")
+    p.set_defaults(func=_cmd_ensemble)
 
     _register_log_commands(sub)
     return parser

@@ -357,18 +357,21 @@ switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 
 class ShippedArm(NamedTuple):
-    """How a shipped MDDPG or DDPG actor was trained: ``arm_config(recipe, scene, steps, seed, eval_every,
-    eval_episodes)`` (``benchmarks/learning.py --steps --eval-every --eval-episodes``)."""
+    """How a shipped MDDPG or DDPG policy was trained: one run ``arm_config(recipe, scene, steps, seed, eval_every,
+    eval_episodes)`` per seed of ``seeds`` (``benchmarks/learning.py --steps --eval-every --eval-episodes
+    --seeds``); with several seeds the shipped file is their actors acting by the mean of their actions
+    (``deck_sim.policies.EnsemblePolicy``)."""
 
     recipe: str
     steps: int
     eval_every: int = 5_000
     eval_episodes: int = 50
+    seeds: tuple[int, ...] = (0,)
 
 
 SHIPPED_RECIPES: dict[str, ShippedArm] = {
     "deck1": ShippedArm("tuned-{algo}-with-data+polish+size", 160_000, 20_000, 100),
-    "deck2": ShippedArm("tuned-{algo}-with-data+polish+size", 320_000, 20_000, 100),
+    "deck2": ShippedArm("tuned-{algo}-with-data+polish+size", 320_000, 20_000, 100, (0, 1)),
     "square": ShippedArm("tuned-{algo}-with-data+polish+near", 160_000, 20_000, 100),
 }
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
@@ -380,7 +383,9 @@ pedestrians, all 0.3 m discs, do not need; on the square it carries the target a
 scale (``near``), without which the walker, reading metres at the scale of a 100 m square, walked off it in 28.5 %
 (MDDPG) and 29.0 % (DDPG) of the held-out episodes (``docs/training.md``, the square). Deck 2 trains for twice the
 steps (320,000): its seed-500 curves were still moving at 160,000, and its MDDPG at 320,000 led its 160,000-step
-self and DDPG at 320,000 on both held-out streams (``docs/training.md``, "Twice the steps on deck 2")."""
+self and DDPG at 320,000 on both held-out streams (``docs/training.md``, "Twice the steps on deck 2"). Deck 2 ships two
+seeds of each, acting by the mean of their actions: the MDDPG pair beat both its members on both held-out streams
+(``docs/training.md``, "Averaging the actions of two seeds")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:
