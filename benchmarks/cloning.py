@@ -54,7 +54,14 @@ from common import machine  # noqa: E402
 
 import deck_sim  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
-from deck_sim.policies import LearnedPolicy, ScriptedPolicy, shipped_policy_path  # noqa: E402
+from deck_sim.policies import (  # noqa: E402
+    EnsemblePolicy,
+    LearnedPolicy,
+    Policy,
+    ScriptedPolicy,
+    load_actor,
+    shipped_policy_path,
+)
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.config import TrainConfig  # noqa: E402
 from training.ddpg import DDPGAgent  # noqa: E402
@@ -104,7 +111,7 @@ def mirror_map(keys: tuple[str, ...], shapes: dict[str, tuple[int, ...]], bounds
 def _collect(job: tuple[str, str, int, int, float, float]) -> tuple[np.ndarray, np.ndarray, int]:
     """One worker's states: (observations (n, dim) float32, teacher actions (n, 2) float32, episodes)."""
     scene, algo, seed, states, noise, teacher_share = job
-    actor = LearnedPolicy.load(shipped_policy_path(algo, scene))
+    actor = load_actor(shipped_policy_path(algo, scene))  # one actor, or the shipped ensemble
     overrides = {**actor.scene_overrides, "episode__predictor": TEACHER_PREDICTOR}
     env = deck_sim.load(scene, seed=seed, **overrides)
     teacher = ScriptedPolicy(env)
@@ -152,22 +159,7 @@ def fit(name: str, x: np.ndarray, y: np.ndarray, meta: dict, bounds: np.ndarray,
     return Fitted(policy, losses[-1], time.perf_counter() - t0)
 
 
-class Ensemble:
-    """The mean action of several actors trained on one observation layout."""
-
-    def __init__(self, members: list[LearnedPolicy]) -> None:
-        self.members = members
-
-    def reset(self) -> None:
-        """Actors have no memory."""
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """The members' mean action (2,)."""
-        x = self.members[0].flatten(observation)
-        return np.clip(np.mean([m.act_flat(x) for m in self.members], axis=0), -1.0, 1.0)
-
-
-def evaluate(scene: str, policy: LearnedPolicy | Ensemble, overrides: dict, episodes: int, seed: int) -> dict:
+def evaluate(scene: str, policy: Policy, overrides: dict, episodes: int, seed: int) -> dict:
     """Outcome rates of ``policy`` over ``episodes`` consecutive episodes of ``deck_sim.load(scene, seed=seed)``."""
     env = deck_sim.load(scene, seed=seed, **overrides)
     results = [run_episode(env, policy, k) for k in range(episodes)]
@@ -194,7 +186,8 @@ def main() -> None:
         parser.error(f"--variants: expected some of {', '.join(VARIANTS)}, got {args.variants!r}")
     torch.set_num_threads(1)
     print(machine(mujoco=mujoco.__version__, torch=torch.__version__))
-    shipped = LearnedPolicy.load(shipped_policy_path(args.algo, args.scene))
+    shipped = load_actor(shipped_policy_path(args.algo, args.scene))
+    actors = shipped.members if isinstance(shipped, EnsemblePolicy) else [shipped]  # the shipped file's actors
     overrides = shipped.scene_overrides
     bounds = deck_sim.load(args.scene, seed=0).task.arena.bounds
 
@@ -228,12 +221,13 @@ def main() -> None:
             f"(noise {args.noise}, teacher share {args.teacher_share}), saved to {data}"
         )
 
-    fitted = {name: fit(name, x, y, shipped.meta, bounds, args.seed) for name in variants}
-    rows: list[tuple[str, LearnedPolicy | Ensemble, Fitted | None]] = [(f"shipped {args.algo}", shipped, None)]
+    fitted = {name: fit(name, x, y, actors[0].meta, bounds, args.seed) for name in variants}
+    rows: list[tuple[str, Policy, Fitted | None]] = [(f"shipped {args.algo}", shipped, None)]
     rows += [(name, f.policy, f) for name, f in fitted.items()]
     if len(fitted) > 1:
-        rows.append(("ensemble of the fits", Ensemble([f.policy for f in fitted.values()]), None))
-    rows.append(("ensemble of the fits + shipped", Ensemble([shipped, *(f.policy for f in fitted.values())]), None))
+        rows.append(("ensemble of the fits", EnsemblePolicy([f.policy for f in fitted.values()]), None))
+    fits_and_shipped = EnsemblePolicy([*actors, *(f.policy for f in fitted.values())])
+    rows.append(("ensemble of the fits + shipped", fits_and_shipped, None))
     print(f"\n{args.scene}, {args.episodes} episodes of deck_sim.load({args.scene!r}, seed={args.eval_seed})")
     print(f"{'policy':32s} {'success':>8s} {'collision':>9s} {'timeout':>8s} {'fit loss':>9s} {'fit s':>6s}")
     for label, policy, f in rows:
