@@ -267,6 +267,10 @@ class EnsemblePolicy:
         self.source = source
         if len(self.members) < 2:
             raise PolicyFileError(f"{source}: an ensemble needs two or more actors, got {len(self.members)}")
+        for i, m in enumerate(self.members):
+            if not isinstance(m, LearnedPolicy):
+                raise PolicyFileError(f"{source}: member {i} is a {type(m).__name__}, not one actor (LearnedPolicy); "
+                                      "an ensemble's members join as they are (EnsemblePolicy([*e.members, ...]))")
         first = self.members[0]
         for i, m in enumerate(self.members):
             if m.head not in ("tanh", "clip"):

@@ -101,6 +101,8 @@ def test_members_that_cannot_act_together_are_refused():
         EnsemblePolicy([_actor("dqn", "deck1"), _actor("dqn", "deck1")])  # a mean of greedy rows is not DQN
     with pytest.raises(PolicyFileError, match="two or more"):
         EnsemblePolicy([ddpg])
+    with pytest.raises(PolicyFileError, match="member 1 is a EnsemblePolicy, not one actor"):
+        EnsemblePolicy([ddpg, EnsemblePolicy([ddpg, ddpg])])
     other = LearnedPolicy(ddpg.arrays, {**ddpg.meta, "scene_overrides": {
         **ddpg.meta["scene_overrides"], "episode__control_period": 0.4}}, source="<slower>")
     with pytest.raises(PolicyFileError, match="needs scene fields"):
