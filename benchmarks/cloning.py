@@ -22,7 +22,8 @@ in minutes rather than a training run's hour, whether the gap is the student's f
      vehicles and the planner are mirror-symmetric, so this doubles the data without a new label;
    - ``wide``: 512 x 512 x 512, 40 epochs: does more capacity fit the teacher better, and does that pay?
 3. **Evaluate** the shipped actor, each fitted actor, the ensemble of the fitted actors (mean action) and that
-   ensemble with the shipped actor on ``--episodes`` held-out episodes of ``deck_sim.load(scene,
+   ensemble with the shipped actor (a shipped ensemble joins by its actors, each weighing one in the mean) on
+   ``--episodes`` held-out episodes of ``deck_sim.load(scene,
    seed=--eval-seed)`` (2000: neither the training-time selection stream, 500, nor the shipped figures', 1000).
 
 Prints one row per policy (success, collision, timeout, the fit's final training loss and time) and the machine.

@@ -89,7 +89,8 @@ ACTOR_FORMAT = "deck_sim.actor/1"
 ACTOR_FORMAT_V2 = "deck_sim.actor/2"
 """Any MLP policy: ``meta`` names the hidden ``activation`` (``ACTIVATIONS``) and the ``head`` (``HEADS``)."""
 ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
-"""Several actors of format 1 or 2 in one file, acting by the mean of their actions (``EnsemblePolicy``)."""
+"""Several actors of format 1 or 2 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
+their actions (``EnsemblePolicy``)."""
 ACTIVATIONS = ("relu", "tanh")
 HEADS = {
     "tanh": "mu(s) = tanh(MLP(s)), 2 outputs (DDPG's actor)",
@@ -127,9 +128,7 @@ class LearnedPolicy:
                 "deck_sim.policies.load_actor (or EnsemblePolicy.load)"
             )
         if fmt not in (ACTOR_FORMAT, ACTOR_FORMAT_V2):
-            raise PolicyFileError(
-                f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r}, {ACTOR_FORMAT_V2!r} or {ENSEMBLE_FORMAT!r}"
-            )
+            raise PolicyFileError(f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r} or {ACTOR_FORMAT_V2!r}")
         try:
             self.keys = tuple(self.meta["observation_keys"])
             self.shapes = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
@@ -259,18 +258,20 @@ class EnsemblePolicy:
 
     Its file (``save``; format ``deck_sim.ensemble/1``) holds each member's arrays under ``m<i>/`` and a ``meta``
     record whose ``members`` list the members' own records; its other fields are the first member's (scene,
-    algorithm, predictor, observation, configuration), so code that reads one actor's record reads an ensemble's.
+    algorithm, predictor, observation, and also ``config``, ``trained_steps``, ``git_commit`` and ``polished``,
+    which may differ between members: read those from ``members``), so code that reads one actor's record reads an
+    ensemble's.
     """
 
     def __init__(self, members: Sequence[LearnedPolicy], source: str = "<members>") -> None:
         self.members = list(members)
         self.source = source
-        if len(self.members) < 2:
-            raise PolicyFileError(f"{source}: an ensemble needs two or more actors, got {len(self.members)}")
         for i, m in enumerate(self.members):
             if not isinstance(m, LearnedPolicy):
                 raise PolicyFileError(f"{source}: member {i} is a {type(m).__name__}, not one actor (LearnedPolicy); "
                                       "an ensemble's members join as they are (EnsemblePolicy([*e.members, ...]))")
+        if len(self.members) < 2:
+            raise PolicyFileError(f"{source}: an ensemble needs two or more actors, got {len(self.members)}")
         first = self.members[0]
         for i, m in enumerate(self.members):
             if m.head not in ("tanh", "clip"):
@@ -300,11 +301,14 @@ class EnsemblePolicy:
             raise PolicyFileError(f"{source}: combine {meta.get('combine')!r}, expected 'mean'")
         members = []
         for i, record in enumerate(records):
+            if record.get("format") == ENSEMBLE_FORMAT:
+                raise PolicyFileError(f"{source}: member {i} is itself an ensemble record; members are single actors")
             prefix = f"m{i}/"
             mine = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
             members.append(LearnedPolicy(mine, record, source=f"{source}, member {i}"))
         ensemble = cls(members, source=source)
-        stray = sorted(k for k in arrays if not (re.match(r"m(\d+)/", k) and int(k[1:k.index("/")]) < len(records)))
+        owners = {f"m{i}" for i in range(len(records))}
+        stray = sorted(k for k in arrays if k.partition("/")[0] not in owners or "/" not in k)
         if stray:
             raise PolicyFileError(f"{source}: arrays {stray[:5]} belong to no member of the ensemble")
         return ensemble

@@ -57,6 +57,7 @@ import csv  # noqa: E402
 import fcntl  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
+import re  # noqa: E402
 import shutil  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -96,17 +97,19 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
 
 
-def ship_logs(runs: list[Path], scene: str, algo: str) -> Path:
+def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str) -> Path:
     """Copy each run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
     <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
     learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
-    further seeds) in ``seed<k>/`` below it (``member_logs``)."""
+    further seeds) in ``seed<seed>/`` below it (``member_logs``)."""
     logs = shipped_log_dir(algo, scene)
     for old in logs.glob("seed*"):  # nothing of an earlier shipped run may stay beside the new logs
-        if old.is_dir():
+        if old.is_symlink() or old.is_file():
+            old.unlink()
+        elif old.is_dir():
             shutil.rmtree(old)
-    for i, run in enumerate(runs):
-        folder = logs if i == 0 else logs / run.name.rpartition("-")[2]
+    for i, (run, seed) in enumerate(zip(runs, seeds, strict=True)):
+        folder = logs if i == 0 else logs / f"seed{seed}"
         for name in ("eval.csv", "config.json"):
             (folder / name).unlink(missing_ok=True)
             if (run / name).exists():
@@ -121,21 +124,29 @@ def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
 
 
 def member_logs(scene: str, algo: str) -> list[Path]:
-    """The shipped log folders of ``scene``'s ``algo``, first run first (``ship_logs``), those with an ``eval.csv``."""
+    """The shipped log folders of ``scene``'s ``algo``, first run first, then ``seed<k>/`` by seed (``ship_logs``),
+    those with an ``eval.csv``."""
     logs = shipped_log_dir(algo, scene)
-    extra = sorted((d for d in logs.glob("seed*") if d.is_dir()), key=lambda d: int(d.name[4:] or 0))
-    return [d for d in (logs, *extra) if (d / "eval.csv").exists()]
+    extra = [(int(m[1]), d) for d in logs.glob("seed*") if d.is_dir() and (m := re.fullmatch(r"seed(\d+)", d.name))]
+    return [d for d in (logs, *(d for _, d in sorted(extra))) if (d / "eval.csv").exists()]
 
 
 def ship(runs: list[Path], dest: Path) -> None:
     """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``), or with several
-    runs an ``EnsemblePolicy`` of their shipped actors."""
+    runs an ``EnsemblePolicy`` of their shipped actors, which must be runs of one recipe and budget (a folder
+    finished by another command with other ``--steps`` is refused, not averaged in)."""
     if len(runs) == 1:
         tmp = dest.with_name(dest.name + ".tmp")
         shutil.copyfile(shipped_actor(runs[0]), tmp)
         os.replace(tmp, dest)
-    else:
-        EnsemblePolicy([LearnedPolicy.load(shipped_actor(r)) for r in runs], source=str(dest)).save(dest)
+        return
+    members = [LearnedPolicy.load(shipped_actor(r)) for r in runs]
+    runs_of = {(m.meta["config"].get("extra", {}).get("recipe"), int(m.meta["config"]["total_steps"]),
+                m.meta["algo"], m.meta["scene"]) for m in members}
+    if len(runs_of) > 1:
+        raise SystemExit(f"{dest}: the runs {[str(r) for r in runs]} are not one recipe and budget "
+                         f"(recipe, steps, agent, scene: {sorted(runs_of, key=str)}); train them again or remove one")
+    EnsemblePolicy(members, source=str(dest)).save(dest)
 
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
@@ -253,7 +264,10 @@ def main() -> None:
     if seeds_given is not None and len(set(seeds_given)) < len(seeds_given):
         raise SystemExit(f"--seeds {args.seeds!r}: each seed once")
     if seeds_given is not None and len(seeds_given) > 1 and {"dqn", "a2c"} & set(algos):
-        raise SystemExit("--seeds: several seeds make an ensemble of MDDPG or DDPG actors; DQN and A2C ship one run")
+        raise SystemExit("--seeds: several seeds make an ensemble of MDDPG or DDPG actors; DQN and A2C ship one run "
+                         "(pass --algos mddpg,ddpg)")
+    if seeds_given is not None and args.evaluate_only:
+        raise SystemExit("--seeds with --evaluate-only: the shipped files' own seeds are measured (drop --seeds)")
     TRAINED_DIR.mkdir(exist_ok=True)
     out = Path(args.out)
     shipped = read_report(TRAINED_DIR / "results.json")
@@ -278,16 +292,22 @@ def main() -> None:
             for seed, run in zip(seeds, runs, strict=True):
                 train(run, scene, algo, steps, seed, fields)
             ship(runs, dest)
-            ship_logs(runs, scene, algo)
+            ship_logs(runs, seeds, scene, algo)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = load_actor(dest).meta
         seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
         # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
         # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
-        logs = member_logs(scene, algo) or [r for r in runs if (r / "eval.csv").exists()]
-        walls = [_train_wall(d) for d in logs]
-        wall = sum(walls) if walls else float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
+        logs = member_logs(scene, algo)
+        if len(logs) != len(seeds):
+            logs = [r for r in runs if (r / "eval.csv").exists()]
+        if len(logs) == len(seeds):  # every run's log, or the sum would leave a run out
+            wall = sum(_train_wall(d) for d in logs)
+        else:
+            wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
+            print(f"{scene} {algo}: {len(logs)} training logs for {len(seeds)} runs; training time kept as recorded "
+                  f"({wall:.0f} s)", flush=True)
         record = {
             "algo": algo,
             "episodes": args.episodes,
@@ -303,7 +323,8 @@ def main() -> None:
             "recipe": shipped_arm(scene, algo).recipe if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
-            "git_commit": str(meta.get("git_commit", "")),
+            "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
+            "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
             "train_wall_s": wall,
             "seeds": list(seeds),
             "file_kib": dest.stat().st_size / 1024,
@@ -325,6 +346,13 @@ def _train_wall(run: Path) -> float:
 
 
 def write_readme(report: dict[str, dict[str, dict]]) -> None:
+    """Write ``deck_sim/trained/README.md`` (``readme_text``) and the project README's table from ``report``."""
+    write_atomic(TRAINED_DIR / "README.md", readme_text(report))
+    write_project_table(report)
+
+
+def readme_text(report: dict[str, dict[str, dict]]) -> str:
+    """``deck_sim/trained/README.md``: how the shipped files were made, and every agent's held-out figures."""
     lines = [
         "# Shipped policies",
         "",
@@ -364,8 +392,14 @@ def write_readme(report: dict[str, dict[str, dict]]) -> None:
             f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
             f"{r['train_steps']} | {r['train_wall_s'] / 60:.0f} min |"
         )
-    write_atomic(TRAINED_DIR / "README.md", "\n".join(lines) + "\n")
-    write_project_table(report)
+    return "\n".join(lines) + "\n"
+
+
+def seeds_cell(seeds: list[int]) -> str:
+    """How many runs stand behind a shipped agent, and their seeds: ``1 (seed 0)``, ``2 (seeds 0, 1; mean action)``."""
+    if len(seeds) == 1:
+        return f"1 (seed {seeds[0]})"
+    return f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; mean action)"
 
 
 def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
@@ -376,8 +410,7 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
-        seeds = r.get("seeds", [])
-        runs = f"{len(seeds)} (mean action)" if len(seeds) > 1 else f"{len(seeds)}"
+        runs = seeds_cell(r.get("seeds", []))
         lines.append(
             f"| {scene} | {LABELS.get(algo, algo)} | {runs} | {100 * r['success']:.1f} % | "
             f"{100 * r['collision']:.1f} % | "

@@ -176,8 +176,8 @@ def test_project_readme_table_matches_results_json():
         cells = (c.strip() for c in line.strip("|").split("|"))
         scene, label, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
-        n = len(record["seeds"])
-        assert runs == (f"{n} (mean action)" if n > 1 else "1"), (scene, label)
+        assert runs == script.seeds_cell(record["seeds"]), (scene, label)
+        assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
             assert cell == f"{100 * record[key]:.1f} %", (scene, label, key)
         assert int(steps.replace(",", "")) == record["train_steps"], (scene, label)
@@ -185,6 +185,21 @@ def test_project_readme_table_matches_results_json():
         seen.add((scene, labels[label]))
     assert seen == {(s, a) for s, agents in _shipped_agents().items() for a in agents}  # every shipped agent, once
     assert len(rows) == len(seen)
+
+
+def test_the_shipped_policies_page_is_the_scripts_own_output(tmp_path):
+    """``deck_sim/trained/README.md`` is what ``train_shipped.py`` writes from ``results.json`` (an edit of the
+    script's text without a rerun, or a hand edit of the page, shows here), and ``results.json`` records from
+    before ensembles (one ``seed``) read as one-seed records."""
+    from deck_sim.policies import TRAINED_DIR
+
+    script = _train_shipped()
+    report = script.read_report(TRAINED_DIR / "results.json")
+    assert script.readme_text(report) == (TRAINED_DIR / "README.md").read_text(encoding="utf-8")
+    legacy = tmp_path / "results.json"
+    legacy.write_text(json.dumps({"deck1": {"dqn": {"success": 0.5, "seed": 4}}}))
+    assert script.read_report(legacy) == {"deck1": {"dqn": {"success": 0.5, "seeds": [4]}}}
+    assert script.seeds_cell([4]) == "1 (seed 4)" and script.seeds_cell([0, 1]) == "2 (seeds 0, 1; mean action)"
 
 
 def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_path, capsys):
@@ -198,7 +213,7 @@ def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_pat
     assert script.write_project_table(report, readme)
     once = readme.read_text(encoding="utf-8")
     assert once.startswith(f"intro\n{start}\n| scene | agent |") and once.endswith(f"{end}\noutro\n")
-    assert "| deck2 | MDDPG | 2 (mean action) | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
+    assert "| deck2 | MDDPG | 2 (seeds 0, 1; mean action) | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
     assert "old" not in once
     assert script.write_project_table(report, readme) and readme.read_text(encoding="utf-8") == once  # idempotent
     assert not (tmp_path / "README.md.tmp").exists()
@@ -256,7 +271,7 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
     monkeypatch.setattr(script, "shipped_log_dir", lambda algo, scene: tmp_path / "logs" / f"{scene}_{algo}")
     dest = tmp_path / "deck1_ddpg.npz"
     script.ship(runs, dest)
-    script.ship_logs(runs, "deck1", "ddpg")
+    script.ship_logs(runs, (0, 3), "deck1", "ddpg")
     shipped = load_actor(dest)
     assert isinstance(shipped, EnsemblePolicy) and script.file_seeds(shipped.meta) == (0, 3)
     assert (logs / "eval.csv").read_text() == (runs[0] / "eval.csv").read_text()

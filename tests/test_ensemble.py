@@ -131,8 +131,12 @@ def test_broken_ensemble_files_give_clear_errors_and_a_failed_save_keeps_the_old
     missing = {k: v for k, v in arrays.items() if k != "m1/w1"}
     with pytest.raises(PolicyFileError, match="member 1.*not a complete deck_sim actor"):
         load_actor(write("missing.npz", missing, meta))
-    with pytest.raises(PolicyFileError, match=r"\['m2/w0'\] belong to no member"):
-        load_actor(write("stray.npz", {**arrays, "m2/w0": arrays["m0/w0"]}, meta))
+    for key in ("m2/w0", "m01/w0", "w0"):
+        with pytest.raises(PolicyFileError, match=rf"\['{key}'\] belong to no member"):
+            load_actor(write("stray.npz", {**arrays, key: arrays["m0/w0"]}, meta))
+    nested = {**meta, "members": [meta["members"][0], {**meta["members"][1], "format": ENSEMBLE_FORMAT}]}
+    with pytest.raises(PolicyFileError, match="member 1 is itself an ensemble record"):
+        load_actor(write("nested.npz", arrays, nested))
     with pytest.raises(PolicyFileError, match="'members' record is not a list"):
         load_actor(write("members.npz", arrays, {**meta, "members": "two"}))
     with pytest.raises(PolicyFileError, match="combine 'median'"):
@@ -143,7 +147,9 @@ def test_broken_ensemble_files_give_clear_errors_and_a_failed_save_keeps_the_old
 
     before = good.read_bytes()
 
-    def fail(*args, **kwargs):
+    def fail(file, *args, **kwargs):  # a write that dies half-way
+        with open(file, "wb") as f:
+            f.write(b"PK\x03\x04 half a file")
         raise OSError("disk full")
 
     monkeypatch.setattr(np, "savez_compressed", fail)
@@ -173,3 +179,6 @@ def test_deck_sim_ensemble_joins_actor_files(tmp_path, capsys):
     assert "reads observation" in capsys.readouterr().err and not (tmp_path / "mixed.npz").exists()
     assert cli(["ensemble", str(a), str(tmp_path / "nope.npz"), "--out", str(tmp_path / "x.npz")]) == 2
     assert "no such actor file" in capsys.readouterr().err
+    # an ensemble given joins by its actors: ab + a is three actors, each weighing one
+    assert cli(["ensemble", str(out), str(a), "--out", str(tmp_path / "aba.npz")]) == 0
+    assert [m.meta["config"]["seed"] for m in load_actor(tmp_path / "aba.npz").members] == [0, 3, 0]

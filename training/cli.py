@@ -491,12 +491,16 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_ensemble(args: argparse.Namespace) -> int:
-    from deck_sim.policies import EnsemblePolicy, LearnedPolicy
+    from deck_sim.policies import EnsemblePolicy, load_actor
 
     out = Path(args.out)
     if any(Path(a).resolve() == out.resolve() for a in args.actors):
         raise ValueError(f"--out {out} is one of the actors it would be made of; write the ensemble elsewhere")
-    ensemble = EnsemblePolicy([LearnedPolicy.load(a) for a in args.actors], source=str(out))
+    members = []
+    for a in args.actors:  # an ensemble file given joins by its members: the result is flat, each actor weighs one
+        policy = load_actor(a)
+        members += policy.members if isinstance(policy, EnsemblePolicy) else [policy]
+    ensemble = EnsemblePolicy(members, source=str(out))
     ensemble.save(out)
     meta = ensemble.meta
     print(f"wrote {out}: {len(ensemble.members)} {meta.get('algo', '?')} actors of scene {meta.get('scene', '?')!r} "
@@ -623,8 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_eval)
 
     p = sub.add_parser("ensemble", help="join actor files into one policy that acts by the mean of their actions")
-    p.add_argument("actors", nargs="+", help="two or more actor .npz files (deck-sim train's actor.npz), one "
-                                             "observation and scene fields")
+    p.add_argument("actors", nargs="+", help="actor .npz files (deck-sim train's actor.npz; an ensemble file adds its "
+                                             "actors), two or more actors of one observation and scene fields")
     p.add_argument("--out", required=True, help="the ensemble .npz to write (an existing file is replaced)")
     p.set_defaults(func=_cmd_ensemble)
 
