@@ -218,8 +218,8 @@ def main() -> None:
                 stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
                 shown = run.relative_to(ROOT) if run.is_absolute() and run.is_relative_to(ROOT) else run
                 others = sorted(d.name for d in run.glob("seed*") if (d / "eval.csv").exists())
-                also = f" (the run of seed {c.get('seed', 0)}; {', '.join(others)} of the shipped ensemble in its " \
-                       f"`seed*/` folders)" if others else ""
+                also = (f" (seed {c.get('seed', 0)}'s run; the shipped ensemble's other runs: "
+                        f"{', '.join(f'`{o}/eval.csv`' for o in others)})") if others else ""
                 how.append(f"{agent}: `{shown}/eval.csv`{also}, {'/'.join(episodes)} episodes of {stream} per point")
             curve_lines.append(
                 f"*{scene}: held-out average reward and success against training steps ({'; '.join(how)}).*"
