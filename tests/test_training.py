@@ -553,9 +553,9 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
         assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
     assert shipped_arm("deck1", "mddpg")[:4] == ("tuned-mddpg-with-data+polish+size", 160_000, 20_000, 100)
     assert shipped_arm("deck2", "ddpg").recipe == "tuned-ddpg-with-data+polish+size"
-    for deck in ("deck1", "deck2"):  # each deck ships two seeds' actors averaged, MDDPG and DDPG alike
+    for deck in ("deck1", "deck2", "square"):  # two seeds' actors averaged, MDDPG and DDPG alike
         assert shipped_arm(deck, "ddpg").seeds == shipped_arm(deck, "mddpg").seeds == (0, 1)
-    assert shipped_arm("square", "mddpg") == ("tuned-mddpg-with-data+polish+near", 160_000, 20_000, 100, (0,))
+    assert shipped_arm("square", "mddpg") == ("tuned-mddpg-with-data+polish+near", 160_000, 20_000, 100, (0, 1))
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)
