@@ -9,6 +9,7 @@ import zipfile
 
 import numpy as np
 import pytest
+from conftest import run_steps
 
 import deck_sim
 from deck_sim.policies import (
@@ -41,15 +42,8 @@ def _perturbed(actor: LearnedPolicy, seed: int, scale: float = 0.5) -> LearnedPo
 
 
 def _observations(policy, scene: str = "deck1", n: int = 12, seed: int = 5) -> list[dict[str, np.ndarray]]:
-    env = deck_sim.load(scene, seed=seed, **policy.scene_overrides)
-    rng = np.random.default_rng(seed)
-    ts, out = env.reset(), []
-    for _ in range(n):
-        out.append(ts.observation)
-        ts = env.step(rng.uniform(-1.0, 1.0, 2))
-        if ts.last():
-            ts = env.reset()
-    return out
+    """Observations of a seeded random walk in the environment ``policy`` needs (``conftest.run_steps``)."""
+    return run_steps(deck_sim.load(scene, seed=seed, **policy.scene_overrides), n, seed=seed)[0]
 
 
 def test_the_ensemble_acts_by_the_mean_of_its_members_actions():
