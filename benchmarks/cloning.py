@@ -73,6 +73,7 @@ VARIANTS = {
     "plain": {"hidden": (400, 300), "epochs": 20, "mirror": False},
     "mirror": {"hidden": (400, 300), "epochs": 20, "mirror": True},
     "wide": {"hidden": (512, 512, 512), "epochs": 40, "mirror": False},
+    "sets": {"hidden": (400, 300), "epochs": 20, "mirror": False, "arch": "sets"},
 }
 PLANAR_Y_KEYS = {
     "target", "static_obstacles", "dynamic_obstacles", "predicted", "velocity", "static_nearest",
@@ -146,8 +147,12 @@ class Fitted:
 def fit(name: str, x: np.ndarray, y: np.ndarray, meta: dict, bounds: np.ndarray, seed: int) -> Fitted:
     """A fresh actor fitted to (x, y) by ``DDPGAgent.polish`` with variant ``name``'s network and epochs."""
     v = VARIANTS[name]
-    cfg = TrainConfig(hidden=tuple(v["hidden"]), obs_norm=True, batch_size=256, polish_lr=1e-3, seed=seed)
-    agent = DDPGAgent(x.shape[1], 2, cfg)
+    cfg = TrainConfig(
+        hidden=tuple(v["hidden"]), obs_norm=True, batch_size=256, polish_lr=1e-3, seed=seed,
+        actor_arch=v.get("arch", "mlp"),
+    )
+    shapes = {k: tuple(meta["observation_shapes"][k]) for k in meta["observation_keys"]}
+    agent = DDPGAgent(x.shape[1], 2, cfg, shapes=shapes)
     agent.norm.update(x)  # the normaliser sees the collected observations, never the reflected ones
     if v["mirror"]:
         index, sign, shift = mirror_map(tuple(meta["observation_keys"]), meta["observation_shapes"], bounds)
@@ -156,7 +161,7 @@ def fit(name: str, x: np.ndarray, y: np.ndarray, meta: dict, bounds: np.ndarray,
     t0 = time.perf_counter()
     losses = agent.polish(x, y, v["epochs"], torch.Generator().manual_seed(seed))
     arrays = agent.export_actor()
-    policy = LearnedPolicy(arrays, {**meta, "polished": True}, source=f"<{name}>")
+    policy = LearnedPolicy(arrays, {**meta, **agent.actor_meta(), "polished": True}, source=f"<{name}>")
     return Fitted(policy, losses[-1], time.perf_counter() - t0)
 
 

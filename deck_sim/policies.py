@@ -88,6 +88,17 @@ ACTOR_FORMAT = "deck_sim.actor/1"
 """DDPG's actors: ReLU hidden layers, a tanh output of 2 (implicit ``activation`` and ``head``)."""
 ACTOR_FORMAT_V2 = "deck_sim.actor/2"
 """Any MLP policy: ``meta`` names the hidden ``activation`` (``ACTIVATIONS``) and the ``head`` (``HEADS``)."""
+ACTOR_FORMAT_SETS = "deck_sim.actor/3"
+"""DDPG's actors with one shared encoder per set of obstacles (Deep Sets, ``meta["sets"]`` names each set's keys):
+every obstacle's features, beside the agent's own (the context), go through its set's MLP (ReLU after every
+layer, arrays ``<set>.w<i>``, ``<set>.b<i>``), the set is max-pooled over its obstacles, and the head MLP (``w<i>``,
+``b<i>``, ReLU hidden layers, tanh output of 2) reads the context and the pooled features."""
+OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
+    "movers": ("dynamic_obstacles", "predicted", "dynamic_size", "dynamic_nearest", "dynamic_heading"),
+    "statics": ("static_obstacles", "static_nearest"),
+}
+"""Observation keys whose rows are one obstacle each, by set: a set actor reads each row of a set's keys as one
+element (mover ``j``'s position now, forecast and size together); every other key is the context."""
 ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
 """Several actors of format 1 or 2 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
 their actions (``EnsemblePolicy``)."""
@@ -102,6 +113,46 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 class PolicyFileError(ValueError):
     """An actor file is missing, corrupt, or does not fit the environment it is asked to act in."""
+
+
+def obstacle_sets(shapes: Mapping[str, Sequence[int]]) -> dict[str, list[str]]:
+    """The sets of ``OBSTACLE_SETS`` that an observation of these ``shapes`` holds, each with its keys present."""
+    out = {name: [k for k in keys if k in shapes] for name, keys in OBSTACLE_SETS.items()}
+    return {name: keys for name, keys in out.items() if keys}
+
+
+def set_indices(
+    shapes: Mapping[str, Sequence[int]], sets: Mapping[str, Sequence[str]]
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Where a set actor's inputs lie in the flat observation (keys in the order of ``shapes``).
+
+    Returns the context's indices (C,) (every key in no set) and, per set, an index array (n, f): row ``j`` holds
+    obstacle ``j``'s features, its row of each of the set's keys in turn. ``ValueError`` if a set's keys do not
+    share their first dimension or name a key the observation lacks."""
+    starts, start = {}, 0
+    for k, s in shapes.items():
+        starts[k] = start
+        start += int(np.prod(s))
+    in_sets = {k for keys in sets.values() for k in keys}
+    unknown = sorted(in_sets - set(shapes))
+    if unknown:
+        raise ValueError(f"set keys {unknown} are not in the observation {sorted(shapes)}")
+    context = np.concatenate(
+        [np.arange(starts[k], starts[k] + int(np.prod(s))) for k, s in shapes.items() if k not in in_sets]
+        or [np.zeros(0, dtype=int)]
+    )
+    elements = {}
+    for name, keys in sets.items():
+        rows = {int(shapes[k][0]) for k in keys}
+        if len(rows) != 1:
+            raise ValueError(f"set {name!r}: keys {list(keys)} have first dimensions {sorted(rows)}, expected one")
+        n = rows.pop()
+        cols = []
+        for k in keys:
+            f = int(np.prod(shapes[k])) // max(n, 1)
+            cols.append(starts[k] + np.arange(n)[:, None] * f + np.arange(f)[None, :])
+        elements[name] = np.concatenate(cols, axis=1)
+    return context.astype(np.int64), elements
 
 
 class LearnedPolicy:
@@ -127,16 +178,20 @@ class LearnedPolicy:
                 f"{source}: an ensemble of {len(self.meta.get('members') or [])} actors, not one actor; read it with "
                 "deck_sim.policies.load_actor (or EnsemblePolicy.load)"
             )
-        if fmt not in (ACTOR_FORMAT, ACTOR_FORMAT_V2):
-            raise PolicyFileError(f"{source}: format {fmt!r}, expected {ACTOR_FORMAT!r} or {ACTOR_FORMAT_V2!r}")
+        formats = (ACTOR_FORMAT, ACTOR_FORMAT_V2, ACTOR_FORMAT_SETS)
+        if fmt not in formats:
+            raise PolicyFileError(f"{source}: format {fmt!r}, expected one of {formats}")
         try:
             self.keys = tuple(self.meta["observation_keys"])
             self.shapes = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
-            self.activation = "relu" if fmt == ACTOR_FORMAT else str(self.meta["activation"])
-            self.head = "tanh" if fmt == ACTOR_FORMAT else str(self.meta["head"])
-            n_layers = sum(1 for k in arrays if re.fullmatch(r"w\d+", k))
-            self.weights = [np.asarray(arrays[f"w{i}"], dtype=np.float64) for i in range(n_layers)]
-            self.biases = [np.asarray(arrays[f"b{i}"], dtype=np.float64) for i in range(n_layers)]
+            self.activation = str(self.meta["activation"]) if fmt == ACTOR_FORMAT_V2 else "relu"
+            self.head = str(self.meta["head"]) if fmt == ACTOR_FORMAT_V2 else "tanh"
+            self.weights, self.biases = _layers(arrays, "")
+            self.sets: dict[str, list[str]] = (
+                {str(n): [str(k) for k in keys] for n, keys in self.meta["sets"].items()}
+                if fmt == ACTOR_FORMAT_SETS else {}
+            )
+            self.encoders = {name: _layers(arrays, f"{name}.") for name in self.sets}
             self.norm_enabled = bool(arrays["norm_enabled"])
             self.norm_mean = np.asarray(arrays["norm_mean"], dtype=np.float64)
             self.norm_std = np.asarray(arrays["norm_std"], dtype=np.float64)
@@ -151,19 +206,30 @@ class LearnedPolicy:
         if self.head not in HEADS:
             raise PolicyFileError(f"{source}: head {self.head!r}, expected one of {tuple(HEADS)}")
         dim = int(sum(np.prod(s) for s in self.shapes.values()))
-        sizes = [dim] + [w.shape[0] for w in self.weights]
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            if w.ndim != 2 or w.shape[1] != sizes[i] or b.shape != (w.shape[0],):
-                raise PolicyFileError(f"{source}: layer {i} has weight {w.shape} and bias {b.shape}, "
-                                      f"which do not follow a layer of {sizes[i]} inputs")
+        head_in = dim
+        if self.sets:
+            try:
+                self._context, self._elements = set_indices(self.shapes, self.sets)
+            except ValueError as err:
+                raise PolicyFileError(f"{source}: {err}") from err
+            head_in = len(self._context)
+            for name, (ws, bs) in self.encoders.items():
+                if not ws:
+                    raise PolicyFileError(f"{source}: set {name!r} has no encoder layers ({name}.w0, ...)")
+                _check_layers(ws, bs, self._elements[name].shape[1] + len(self._context), f"{source}, set {name!r}")
+                head_in += ws[-1].shape[0]
+        _check_layers(self.weights, self.biases, head_in, source)
         if self.action_table is not None:
             table = self.action_table
             if table.ndim != 2 or table.shape[1] != 2 or not np.all(np.abs(table) <= 1.0):
                 raise PolicyFileError(f"{source}: action_table has shape {table.shape}; expected (n, 2) in [-1, 1]")
         outputs = 2 if self.action_table is None else len(self.action_table)
-        if not self.weights or sizes[-1] != outputs or self.norm_mean.shape != (dim,) or self.norm_std.shape != (dim,):
+        norm_ok = self.norm_mean.shape == (dim,) and self.norm_std.shape == (dim,)
+        if not self.weights or self.weights[-1].shape[0] != outputs or not norm_ok:
             raise PolicyFileError(f"{source}: expected {dim} inputs and {outputs} outputs, normaliser of size {dim}")
-        if not all(np.all(np.isfinite(a)) for a in (*self.weights, *self.biases, self.norm_mean, self.norm_std)):
+        encoders = [a for ws, bs in self.encoders.values() for a in (*ws, *bs)]
+        if not all(np.all(np.isfinite(a)) for a in (*self.weights, *self.biases, *encoders, self.norm_mean,
+                                                     self.norm_std)):
             raise PolicyFileError(f"{source}: the actor holds NaN or infinite weights")
         if self.norm_enabled and not np.all(self.norm_std > 0):
             raise PolicyFileError(f"{source}: the normaliser has a zero or negative std")
@@ -232,6 +298,8 @@ class LearnedPolicy:
             x = x.astype(np.float32).astype(np.float64)
         if self.norm_enabled:
             x = np.clip((x - self.norm_mean) / self.norm_std, -self.norm_clip, self.norm_clip)
+        if self.sets:
+            x = self._pooled(x)
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             x = x @ w.T + b
             if i < len(self.weights) - 1:
@@ -242,9 +310,38 @@ class LearnedPolicy:
             return np.clip(x, -1.0, 1.0)
         return self.action_table[np.argmax(x, axis=-1)]
 
+    def _pooled(self, x: np.ndarray) -> np.ndarray:
+        """A set actor's head input (..., C + sum of pooled widths) for normalised flat observations (..., dim)."""
+        context = x[..., self._context]
+        parts = [context]
+        for name, (ws, bs) in self.encoders.items():
+            elements = x[..., self._elements[name]]  # (..., n, f)
+            h = np.concatenate([elements, np.broadcast_to(context[..., None, :], (*elements.shape[:-1],
+                                                                                   context.shape[-1]))], axis=-1)
+            for w, b in zip(ws, bs, strict=True):
+                h = np.maximum(h @ w.T + b, 0.0)
+            parts.append(h.max(axis=-2))
+        return np.concatenate(parts, axis=-1)
+
     def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The actor's action (2,) for one observation dict."""
         return self.act_flat(self.flatten(observation))
+
+
+def _layers(arrays: Mapping[str, np.ndarray], prefix: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The weights and biases ``<prefix>w<i>``, ``<prefix>b<i>`` of one MLP (as float64), in order."""
+    n = sum(1 for k in arrays if re.fullmatch(re.escape(prefix) + r"w\d+", k))
+    return ([np.asarray(arrays[f"{prefix}w{i}"], dtype=np.float64) for i in range(n)],
+            [np.asarray(arrays[f"{prefix}b{i}"], dtype=np.float64) for i in range(n)])
+
+
+def _check_layers(weights: Sequence[np.ndarray], biases: Sequence[np.ndarray], inputs: int, source: str) -> None:
+    """``PolicyFileError`` unless each layer's weight (out, in) and bias (out,) follow from ``inputs``."""
+    sizes = [inputs] + [w.shape[0] if w.ndim == 2 else -1 for w in weights]
+    for i, (w, b) in enumerate(zip(weights, biases, strict=True)):
+        if w.ndim != 2 or w.shape[1] != sizes[i] or b.shape != (w.shape[0],):
+            raise PolicyFileError(f"{source}: layer {i} has weight {w.shape} and bias {b.shape}, "
+                                  f"which do not follow a layer of {sizes[i]} inputs")
 
 
 class EnsemblePolicy:

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 TRAIN_SEED_BASE = 1_000_000
 ALGOS = ("mddpg", "ddpg")
 NOISES = ("gaussian", "ou")
+ACTOR_ARCHS = ("mlp", "sets")
 
 
 class ConfigError(ValueError):
@@ -83,6 +84,12 @@ class TrainConfig:
     # -- networks and optimisation (paper eq. 3-6) ------------------------------------------------------------
     hidden: tuple[int, ...] = (256, 256)
     """Hidden layer widths of the actor and of each critic (ReLU)."""
+    actor_arch: str = "mlp"
+    """The actor's network (the online actor's and the final fit's): ``mlp`` over the flat observation, or
+    ``sets``: one encoder per set of obstacles (the movers, the statics), shared by every obstacle of its set and
+    max-pooled, under an MLP head of ``hidden`` (``training.networks.SetActor``); the critic stays an MLP."""
+    set_hidden: tuple[int, ...] = (128, 128)
+    """Hidden layer widths of each set encoder of ``actor_arch = "sets"`` (ReLU after every layer)."""
     actor_lr: float = 3e-4
     """Adam learning rate of the actor."""
     critic_lr: float = 3e-4
@@ -236,6 +243,10 @@ class TrainConfig:
                 raise ConfigError(f"{name}: must be positive, got {getattr(self, name)!r}")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise ConfigError(f"hidden: expected positive layer widths, got {self.hidden!r}")
+        if self.actor_arch not in ACTOR_ARCHS:
+            raise ConfigError(f"actor_arch: expected one of {', '.join(ACTOR_ARCHS)}, got {self.actor_arch!r}")
+        if not self.set_hidden or any(int(h) < 1 for h in self.set_hidden):
+            raise ConfigError(f"set_hidden: expected positive layer widths, got {self.set_hidden!r}")
         if any(int(h) < 1 for h in self.polish_hidden):
             raise ConfigError(f"polish_hidden: expected positive layer widths (or none), got {self.polish_hidden!r}")
         last = 0.0
@@ -252,6 +263,7 @@ class TrainConfig:
         d = dataclasses.asdict(self)
         d["hidden"] = list(self.hidden)
         d["polish_hidden"] = list(self.polish_hidden)
+        d["set_hidden"] = list(self.set_hidden)
         return d
 
     @classmethod
@@ -262,7 +274,7 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
         d = dict(d)
-        for key in ("hidden", "polish_hidden"):
+        for key in ("hidden", "polish_hidden", "set_hidden"):
             if key in d:
                 d[key] = tuple(int(h) for h in d[key])
         if "curriculum" in d:
@@ -340,6 +352,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "ego": {"scene_overrides": {"episode__frame": "agent"}},
     "widepolish": {"polish_epochs": 40, "polish_hidden": (512, 512, 512)},
     "route": {"scene_overrides": {"episode__route_steps": 10}},
+    "sets": {"actor_arch": "sets"},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -352,7 +365,8 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 ``near``: the target and the surface's edges clipped to 4 steps' reach, ``episode.near_steps``; ``ego``: the
 observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``; ``widepolish``: the
 final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``; ``route``: the next 10 steps' reach
-of the shortest way round the static obstacles in the observation, ``episode.route_steps``). Several
+of the shortest way round the static obstacles in the observation, ``episode.route_steps``; ``sets``: the actor
+reads the movers and the statics through one shared, max-pooled encoder per set, ``actor_arch = "sets"``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

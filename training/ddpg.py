@@ -13,14 +13,17 @@ With every switch off this is the paper's DDPG.
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from deck_sim.policies import ACTOR_FORMAT, ACTOR_FORMAT_SETS, obstacle_sets, set_indices
 from training.buffers import Batch
 from training.config import TrainConfig
-from training.networks import Actor, Critic, RunningNorm
+from training.networks import Actor, Critic, RunningNorm, SetActor
 
 
 @torch.no_grad()
@@ -43,13 +46,33 @@ class DDPGAgent:
         obs_dim, act_dim: sizes of the flat observation and of the action.
         config: the run's hyperparameters (networks, learning rates, gamma, tau and the switches).
         generator: the torch generator for target smoothing noise (seeded by the trainer).
+        shapes: the flat observation's keys and shapes in order; needed by ``actor_arch = "sets"``, whose actor
+            reads the obstacles' rows (``deck_sim.policies.obstacle_sets``) and whose normaliser then pools each
+            set's statistics over its obstacles (``RunningNorm.tie``).
     """
 
-    def __init__(self, obs_dim: int, act_dim: int, config: TrainConfig, generator: torch.Generator | None = None):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        config: TrainConfig,
+        generator: torch.Generator | None = None,
+        shapes: Mapping[str, Sequence[int]] | None = None,
+    ):
         self.config = config
         self.obs_dim, self.act_dim = obs_dim, act_dim
         hidden = tuple(config.hidden)
         self.norm = RunningNorm(obs_dim, enabled=config.obs_norm)
+        self.sets: dict[str, list[str]] = {}
+        self.shapes = {k: tuple(int(n) for n in v) for k, v in (shapes or {}).items()}
+        if config.actor_arch == "sets":
+            if not self.shapes or sum(int(np.prod(v)) for v in self.shapes.values()) != obs_dim:
+                raise ValueError(f"actor_arch 'sets' needs the observation's shapes summing to {obs_dim} inputs, "
+                                 f"got {self.shapes or None}")
+            self.sets = obstacle_sets(self.shapes)
+            if not self.sets:
+                raise ValueError(f"actor_arch 'sets': the observation {sorted(self.shapes)} holds no obstacle set")
+            self.norm.tie(list(set_indices(self.shapes, self.sets)[1].values()))
         self.set_actor_widths(hidden)  # the actor, its target and its optimiser (initialised before the critic)
         self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1)
         self.critic_target = copy.deepcopy(self.critic)
@@ -162,7 +185,7 @@ class DDPGAgent:
         widths = tuple(cfg.polish_hidden) or tuple(cfg.hidden)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(torch.randint(2**31 - 1, (1,), generator=generator)))
-            fresh = Actor(self.obs_dim, self.act_dim, widths)
+            fresh = self._new_actor(widths)
         if widths != tuple(cfg.hidden):
             self.set_actor_widths(widths)
         self.actor.load_state_dict(fresh.state_dict())
@@ -195,11 +218,17 @@ class DDPGAgent:
         the online actor (``config.hidden``) or the final fit's own (``config.polish_hidden``); the critic is left
         as it is."""
         cfg = self.config
-        self.actor = Actor(self.obs_dim, self.act_dim, tuple(widths))
+        self.actor = self._new_actor(tuple(widths))
         self.actor_target = copy.deepcopy(self.actor)
         for p in self.actor_target.parameters():
             p.requires_grad_(False)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr, fused=True)
+
+    def _new_actor(self, widths: tuple[int, ...]) -> nn.Module:
+        """A freshly initialised actor of ``config.actor_arch`` with hidden (head) ``widths``."""
+        if self.sets:
+            return SetActor(self.shapes, self.sets, self.act_dim, widths, tuple(self.config.set_hidden))
+        return Actor(self.obs_dim, self.act_dim, widths)
 
     # -- state ----------------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, object]:
@@ -229,15 +258,29 @@ class DDPGAgent:
         self.updates = int(state["updates"])
 
     def export_actor(self) -> dict[str, np.ndarray]:
-        """The greedy policy as plain arrays: normaliser statistics and each layer's weight and bias (float32)."""
+        """The greedy policy as plain arrays (float32): the normaliser's statistics as ``forward`` applies them,
+        each head layer's weight and bias (``w<i>``, ``b<i>``) and a set actor's encoder layers
+        (``<set>.w<i>``, ``<set>.b<i>``); ``actor_meta`` gives the record that goes with them."""
+        mean, std = self.norm.stats()
         out: dict[str, np.ndarray] = {
             "norm_enabled": np.array(self.norm.enabled),
-            "norm_mean": self.norm.mean.numpy().astype(np.float32),
-            "norm_std": torch.sqrt(self.norm.var + self.norm.eps).numpy().astype(np.float32),
+            "norm_mean": mean.numpy().astype(np.float32),
+            "norm_std": std.numpy().astype(np.float32),
             "norm_clip": np.array(self.norm.clip, dtype=np.float32),
         }
-        linear = [m for m in self.actor.net if isinstance(m, nn.Linear)]
-        for i, layer in enumerate(linear):
-            out[f"w{i}"] = layer.weight.detach().numpy().astype(np.float32)
-            out[f"b{i}"] = layer.bias.detach().numpy().astype(np.float32)
+        nets = {"": self.actor.head} if self.sets else {"": self.actor.net}
+        if self.sets:
+            nets.update({f"{name}.": self.actor.encoders[name] for name in self.sets})
+        for prefix, net in nets.items():
+            linear = [m for m in net if isinstance(m, nn.Linear)]
+            for i, layer in enumerate(linear):
+                out[f"{prefix}w{i}"] = layer.weight.detach().numpy().astype(np.float32)
+                out[f"{prefix}b{i}"] = layer.bias.detach().numpy().astype(np.float32)
         return out
+
+    def actor_meta(self) -> dict[str, Any]:
+        """The format fields of the exported actor's record: ``deck_sim.actor/1`` for an MLP actor,
+        ``deck_sim.actor/3`` with its ``sets`` for a set actor."""
+        if self.sets:
+            return {"format": ACTOR_FORMAT_SETS, "sets": {k: list(v) for k, v in self.sets.items()}}
+        return {"format": ACTOR_FORMAT}

@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize
-from deck_sim.policies import ACTOR_FORMAT, LearnedPolicy
+from deck_sim.policies import LearnedPolicy
 from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
 from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
@@ -117,9 +117,11 @@ class _Slot:
     obs: np.ndarray | None = None
 
 
-def _actor_meta(config: TrainConfig, layout: ObservationLayout, step: int, polished: bool = False) -> dict[str, Any]:
+def _actor_meta(
+    config: TrainConfig, layout: ObservationLayout, agent: DDPGAgent, step: int, polished: bool = False
+) -> dict[str, Any]:
     return {
-        "format": ACTOR_FORMAT,
+        **agent.actor_meta(),
         "scene": config.scene,
         "scene_overrides": config.scene_overrides,
         "algo": config.algo,
@@ -199,7 +201,7 @@ class Trainer:
         self.layout = env_layout(probe)
         probe.close()
         self.obs_dim = self.layout.dim
-        self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1))
+        self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1), self.layout.shapes)
         self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, 2)
         self.noise = make_noise(cfg.noise, cfg.num_envs, 2, cfg.noise_sigma, cfg.ou_theta)
         self.step = 0
@@ -351,9 +353,8 @@ class Trainer:
                 self.save_checkpoint()
                 owed = False
             if not owed:  # (a run stopped while its polish is owed is not finished: no actor.npz yet)
-                save_actor(
-                    self.run_dir / "actor.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished)
-                )
+                meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.polished)
+                save_actor(self.run_dir / "actor.npz", self.agent, meta)
         self._tb.close()
         return {
             "step": self.step,
@@ -494,7 +495,7 @@ class Trainer:
     # -- evaluation ---------------------------------------------------------------------------------------------
     def actor_policy(self) -> LearnedPolicy:
         """The current greedy actor as the policy an exported file would give."""
-        return LearnedPolicy(self.agent.export_actor(), _actor_meta(self.config, self.layout, self.step))
+        return LearnedPolicy(self.agent.export_actor(), _actor_meta(self.config, self.layout, self.agent, self.step))
 
     def evaluate(self, episodes: int | None = None) -> dict[str, Any]:
         """Play ``eval_episodes`` held-out episodes (seed ``eval_seed``, the full scene) with the greedy actor."""
@@ -518,9 +519,8 @@ class Trainer:
         summary["success"] = summary["goal_rate"]
         if summary["success"] > self.best_success:
             self.best_success = summary["success"]
-            save_actor(
-                self.run_dir / "actor_best.npz", self.agent, _actor_meta(cfg, self.layout, self.step, self.polished)
-            )
+            meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.polished)
+            save_actor(self.run_dir / "actor_best.npz", self.agent, meta)
         return summary
 
     # -- logs ---------------------------------------------------------------------------------------------------

@@ -1,17 +1,20 @@
-"""Actor and critic MLPs and the running observation normaliser (PyTorch).
+"""Actor and critic networks and the running observation normaliser (PyTorch).
 
-The actor maps a (normalised) observation to an action in [-1, 1]^2 through tanh; the critic maps an observation
-and an action to one Q value. ``RunningNorm`` keeps its statistics as registered buffers, so they travel with the
-module's ``state_dict`` into checkpoints and exported policies.
+The actor maps a (normalised) observation to an action in [-1, 1]^2 through tanh: an MLP over the flat vector
+(``Actor``) or one shared encoder per set of obstacles, max-pooled, under an MLP head (``SetActor``); the critic
+maps an observation and an action to one Q value. ``RunningNorm`` keeps its statistics as registered buffers, so
+they travel with the module's ``state_dict`` into checkpoints and exported policies.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
 from torch import nn
+
+from deck_sim.policies import set_indices
 
 
 def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None) -> nn.Sequential:
@@ -55,11 +58,28 @@ class RunningNorm(nn.Module):
         self.var.copy_(m2 / total)
         self.count.copy_(total)
 
+    def tie(self, groups: Sequence[np.ndarray]) -> None:
+        """Normalise each group's rows alike: ``groups`` are index arrays (n, f) whose n rows are the same f
+        features of n obstacles (``deck_sim.policies.set_indices``); each feature is then normalised by its mean
+        and variance over all n rows together, so a shared set encoder reads the same metres the same way in every
+        row. The statistics kept are unchanged (``stats`` pools them)."""
+        self._groups = [torch.as_tensor(np.asarray(g, dtype=np.int64)) for g in groups if np.size(g)]
+
+    def stats(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The (mean, std) that ``forward`` applies, float64 (dim,): per dimension, pooled over tied groups."""
+        mean, var = self.mean.clone(), self.var.clone()
+        for g in getattr(self, "_groups", ()):
+            m, v = self.mean[g], self.var[g]  # (n, f); every row saw the same count
+            pooled = m.mean(0)
+            mean[g] = pooled.expand_as(m)
+            var[g] = ((v + m.square()).mean(0) - pooled.square()).clamp_min(0.0).expand_as(m)
+        return mean, torch.sqrt(var + self.eps)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.enabled:
             return x
-        std = torch.sqrt(self.var + self.eps).to(x.dtype)
-        return torch.clamp((x - self.mean.to(x.dtype)) / std, -self.clip, self.clip)
+        mean, std = self.stats()
+        return torch.clamp((x - mean.to(x.dtype)) / std.to(x.dtype), -self.clip, self.clip)
 
 
 class Actor(nn.Module):
@@ -71,6 +91,53 @@ class Actor(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs)
+
+
+class SetActor(nn.Module):
+    """mu(s) with one encoder per set of obstacles (Deep Sets; Zaheer et al., 2017), as in crowd navigation's
+    pooled pairwise features (Chen et al., 2019, SARL).
+
+    Each obstacle's features (its rows of the set's keys: a mover's position now, forecast and size) beside the
+    context (every key in no set: target, own position, velocity, heading...) pass through the set's shared MLP
+    (``set_hidden``, ReLU after every layer) and are max-pooled over the set's obstacles; the head MLP
+    (``hidden``) maps the context and each set's pooled features to the action through tanh. One weight set
+    serves every mover, so what is learnt about one mover's forecast holds for all of them, whichever slot of
+    the nearest-first order it is in. ``deck_sim.policies.LearnedPolicy`` runs the exported arrays
+    (``deck_sim.actor/3``).
+
+    Args:
+        shapes: the flat observation's keys and shapes, in order.
+        sets: set name -> its keys (``deck_sim.policies.obstacle_sets``).
+    """
+
+    def __init__(
+        self,
+        shapes: Mapping[str, Sequence[int]],
+        sets: Mapping[str, Sequence[str]],
+        act_dim: int,
+        hidden: Sequence[int],
+        set_hidden: Sequence[int],
+    ) -> None:
+        super().__init__()
+        context, elements = set_indices(shapes, sets)
+        self.register_buffer("context", torch.as_tensor(context), persistent=False)
+        self.names = list(elements)
+        for name, idx in elements.items():
+            self.register_buffer(f"idx_{name}", torch.as_tensor(idx), persistent=False)
+        c = len(context)
+        self.encoders = nn.ModuleDict(
+            {name: mlp([idx.shape[1] + c, *set_hidden], nn.ReLU()) for name, idx in elements.items()}
+        )
+        self.head = mlp([c + len(elements) * int(set_hidden[-1]), *hidden, act_dim], nn.Tanh())
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        context = obs[..., self.context]
+        parts = [context]
+        for name in self.names:
+            elements = obs[..., getattr(self, f"idx_{name}")]  # (..., n, f)
+            ctx = context.unsqueeze(-2).expand(*elements.shape[:-1], context.shape[-1])
+            parts.append(self.encoders[name](torch.cat([elements, ctx], dim=-1)).max(dim=-2).values)
+        return self.head(torch.cat(parts, dim=-1))
 
 
 class Critic(nn.Module):
