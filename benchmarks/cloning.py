@@ -1,7 +1,7 @@
 """How far does cloning the teacher go? An offline DAgger probe on the states a shipped actor visits.
 
     python benchmarks/cloning.py [--scene deck1] [--algo mddpg] [--states 160000] [--workers 2]
-                                 [--variants plain,mirror,wide] [--episodes 200] [--eval-seed 2000]
+                                 [--variants plain,mirror,wide,sets] [--episodes 200] [--eval-seed 2000]
                                  [--data runs/cloning/deck1-mddpg.npz]
 
 The shipped learners are DDPG agents taught by the scripted planner (DDPG from demonstrations with DAgger-style
@@ -21,6 +21,8 @@ in minutes rather than a training run's hour, whether the gap is the student's f
      flipped, the absolute position mirrored, sizes kept) and the teacher's action reflected with it: the
      vehicles and the planner are mirror-symmetric, so this doubles the data without a new label;
    - ``wide``: 512 x 512 x 512, 40 epochs: does more capacity fit the teacher better, and does that pay?
+   - ``sets``: the set actor (``actor_arch = "sets"``: one shared encoder of 128 x 128 per set of obstacles,
+     max-pooled, under the 400 x 300 head), 20 epochs: does reading every mover with the same weights pay?
 3. **Evaluate** the shipped actor, each fitted actor, the ensemble of the fitted actors (mean action) and that
    ensemble with the shipped actor (a shipped ensemble joins by its actors, each weighing one in the mean) on
    ``--episodes`` held-out episodes of ``deck_sim.load(scene,
