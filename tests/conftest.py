@@ -40,3 +40,26 @@ def run_steps(env, n, actions=None, seed=0):
             ts = env.reset()
             obs.append(ts.observation)
     return obs, rewards
+
+
+def short_config(**fields):  # noqa: ANN003, ANN201
+    """A seconds-long run of the tuned recipe on deck 1 (tiny networks, two environments), ``fields`` on top."""
+    base = dict(
+        scene="deck1",
+        total_steps=120,
+        num_envs=2,
+        hidden=(32, 32),
+        batch_size=32,
+        learning_starts=40,
+        demo_episodes=1,
+        pretrain_updates=5,
+        eval_every=0,
+        eval_episodes=1,
+        log_every=20,
+        checkpoint_every=0,
+        updates_per_step=0.5,
+    )
+    base.update(fields)
+    from training.config import make_config
+
+    return make_config("tuned", **base)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import short_config
 
 from deck_sim.policies import (
     ACTOR_FORMAT_SETS,
@@ -149,27 +150,10 @@ def test_set_actor_config_errors_name_the_field(shapes):
 
 
 def _short(**fields) -> TrainConfig:  # noqa: ANN003
-    base = dict(
-        scene="deck1",
-        total_steps=100,
-        num_envs=2,
-        hidden=(32, 32),
-        set_hidden=(16, 16),
-        actor_arch="sets",
-        batch_size=32,
-        learning_starts=40,
-        demo_episodes=1,
-        pretrain_updates=5,
-        eval_every=0,
-        eval_episodes=1,
-        log_every=20,
-        checkpoint_every=0,
-        updates_per_step=0.5,
-        env_worker=False,
-        scene_overrides={"episode__mover_size": True},
-    )
-    base.update(fields)
-    return make_config("tuned", **base)
+    """``conftest.short_config`` with the set actor (the movers' sizes in the observation, environments inline)."""
+    base = dict(set_hidden=(16, 16), actor_arch="sets", total_steps=100, env_worker=False,
+                scene_overrides={"episode__mover_size": True})
+    return short_config(**{**base, **fields})
 
 
 def test_a_set_actor_run_resumes_exactly_polishes_and_exports_an_actor_that_acts(tmp_path):

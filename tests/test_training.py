@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import short_config as _short
 
 from training.buffers import ReplayBuffer
 from training.config import ConfigError, TrainConfig, make_config, train_episode_seed
@@ -194,26 +195,6 @@ NEAR = {  # an empty deck with a near target: something a short run can learn
     "agent__min_target_distance": 10.0,
     "agent__max_target_distance": 30.0,
 }
-
-
-def _short(**fields) -> TrainConfig:  # noqa: ANN003
-    base = dict(
-        scene="deck1",
-        total_steps=120,
-        num_envs=2,
-        hidden=(32, 32),
-        batch_size=32,
-        learning_starts=40,
-        demo_episodes=1,
-        pretrain_updates=5,
-        eval_every=0,
-        eval_episodes=1,
-        log_every=20,
-        checkpoint_every=0,
-        updates_per_step=0.5,
-    )
-    base.update(fields)
-    return make_config("tuned", **base)
 
 
 def _rows(path):  # noqa: ANN001, ANN202
