@@ -268,9 +268,10 @@ class DDPGAgent:
             "norm_std": std.numpy().astype(np.float32),
             "norm_clip": np.array(self.norm.clip, dtype=np.float32),
         }
-        nets = {"": self.actor.head} if self.sets else {"": self.actor.net}
         if self.sets:
-            nets.update({f"{name}.": self.actor.encoders[name] for name in self.sets})
+            nets = {"": self.actor.head, **{f"{name}.": self.actor.encoders[name] for name in self.sets}}
+        else:
+            nets = {"": self.actor.net}
         for prefix, net in nets.items():
             linear = [m for m in net if isinstance(m, nn.Linear)]
             for i, layer in enumerate(linear):

@@ -44,6 +44,7 @@ class RunningNorm(nn.Module):
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.tensor(1e-4, dtype=torch.float64))
+        self._groups: list[torch.Tensor] = []  # index arrays whose rows share statistics (``tie``)
 
     def update(self, x: np.ndarray) -> None:
         """Fold a batch of observations (n, dim) into the statistics."""
@@ -67,8 +68,10 @@ class RunningNorm(nn.Module):
 
     def stats(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The (mean, std) that ``forward`` applies, float64 (dim,): per dimension, pooled over tied groups."""
+        if not self._groups:  # (the MLP actor's case: nothing to pool, nothing copied)
+            return self.mean, torch.sqrt(self.var + self.eps)
         mean, var = self.mean.clone(), self.var.clone()
-        for g in getattr(self, "_groups", ()):
+        for g in self._groups:
             m, v = self.mean[g], self.var[g]  # (n, f); every row saw the same count
             pooled = m.mean(0)
             mean[g] = pooled.expand_as(m)
