@@ -92,7 +92,12 @@ ACTOR_FORMAT_SETS = "deck_sim.actor/3"
 """DDPG's actors with one shared encoder per set of obstacles (Deep Sets, ``meta["sets"]`` names each set's keys):
 every obstacle's features, beside the agent's own (the context), go through its set's MLP (ReLU after every
 layer, arrays ``<set>.w<i>``, ``<set>.b<i>``), the set is max-pooled over its obstacles, and the head MLP (``w<i>``,
-``b<i>``, ReLU hidden layers, tanh output of 2) reads the context and the pooled features."""
+``b<i>``, ReLU hidden layers, tanh output of 2) reads the context and the pooled features.
+
+The orders a reader must keep (``set_indices`` gives the indices, after normalising the whole flat vector):
+an encoder's input is [the obstacle's row of each of the set's keys, in the order ``meta["sets"]`` lists them;
+then the context]; the head's input is [the context; then each set's pooled features, in the order of
+``meta["sets"]``]; the context is every key in no set, in the order of ``observation_keys``."""
 OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
     "movers": ("dynamic_obstacles", "predicted", "dynamic_size", "dynamic_nearest", "dynamic_heading"),
     "statics": ("static_obstacles", "static_nearest"),
@@ -100,7 +105,7 @@ OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
 """Observation keys whose rows are one obstacle each, by set: a set actor reads each row of a set's keys as one
 element (mover ``j``'s position now, forecast and size together); every other key is the context."""
 ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
-"""Several actors of format 1 or 2 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
+"""Several actors of format 1, 2 or 3 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
 their actions (``EnsemblePolicy``)."""
 ACTIVATIONS = ("relu", "tanh")
 HEADS = {
@@ -116,8 +121,11 @@ class PolicyFileError(ValueError):
 
 
 def obstacle_sets(shapes: Mapping[str, Sequence[int]]) -> dict[str, list[str]]:
-    """The sets of ``OBSTACLE_SETS`` that an observation of these ``shapes`` holds, each with its keys present."""
-    out = {name: [k for k in keys if k in shapes] for name, keys in OBSTACLE_SETS.items()}
+    """The sets of ``OBSTACLE_SETS`` that an observation of these ``shapes`` holds, each with its keys present; a
+    set with no obstacle in this observation (a scene without movers: keys of shape (0, ...)) is left out, its
+    empty keys then add nothing to the context."""
+    out = {name: [k for k in keys if k in shapes and len(shapes[k]) and int(shapes[k][0]) > 0]
+           for name, keys in OBSTACLE_SETS.items()}
     return {name: keys for name, keys in out.items() if keys}
 
 
@@ -128,15 +136,23 @@ def set_indices(
 
     Returns the context's indices (C,) (every key in no set) and, per set, an index array (n, f): row ``j`` holds
     obstacle ``j``'s features, its row of each of the set's keys in turn. ``ValueError`` if a set's keys do not
-    share their first dimension or name a key the observation lacks."""
+    share their first dimension, name a key the observation lacks, have no row per obstacle (a scalar shape),
+    or if a set holds no obstacle or a key lies in two sets."""
     starts, start = {}, 0
     for k, s in shapes.items():
         starts[k] = start
         start += int(np.prod(s))
-    in_sets = {k for keys in sets.values() for k in keys}
+    listed = [k for keys in sets.values() for k in keys]
+    in_sets = set(listed)
+    if len(in_sets) < len(listed):
+        twice = sorted({k for k in listed if listed.count(k) > 1})
+        raise ValueError(f"set keys {twice} are listed more than once in {dict(sets)}")
     unknown = sorted(in_sets - set(shapes))
     if unknown:
         raise ValueError(f"set keys {unknown} are not in the observation {sorted(shapes)}")
+    scalar = sorted(k for k in in_sets if len(shapes[k]) == 0)
+    if scalar:
+        raise ValueError(f"set keys {scalar} have no row per obstacle (shape ())")
     context = np.concatenate(
         [np.arange(starts[k], starts[k] + int(np.prod(s))) for k, s in shapes.items() if k not in in_sets]
         or [np.zeros(0, dtype=int)]
@@ -147,9 +163,11 @@ def set_indices(
         if len(rows) != 1:
             raise ValueError(f"set {name!r}: keys {list(keys)} have first dimensions {sorted(rows)}, expected one")
         n = rows.pop()
+        if n == 0:
+            raise ValueError(f"set {name!r} holds no obstacle (keys {list(keys)} have 0 rows)")
         cols = []
         for k in keys:
-            f = int(np.prod(shapes[k])) // max(n, 1)
+            f = int(np.prod(shapes[k])) // n
             cols.append(starts[k] + np.arange(n)[:, None] * f + np.arange(f)[None, :])
         elements[name] = np.concatenate(cols, axis=1)
     return context.astype(np.int64), elements
@@ -164,8 +182,10 @@ class LearnedPolicy:
     configuration. Format ``deck_sim.actor/1`` is DDPG's actor, mu(s) = tanh(MLP(normalise(s))) with ReLU hidden
     layers; format ``deck_sim.actor/2`` names the hidden ``activation`` and the ``head`` in ``meta`` (``HEADS``;
     ``argmax`` also needs an ``action_table`` array; ``input_dtype: float32`` rounds observations to float32 first,
-    as the policy saw them in training). ``act`` flattens the observation dict in the trained key
-    order and checks every shape, so a policy asked to act on another scene or predictor fails with a clear error.
+    as the policy saw them in training); format ``deck_sim.actor/3`` is DDPG's set actor (``ACTOR_FORMAT_SETS``:
+    ``meta["sets"]`` names each set's keys, arrays ``<set>.w<i>``, ``<set>.b<i>`` its encoder). ``act`` flattens
+    the observation dict in the trained key order and checks every shape, so a policy asked to act on another
+    scene or predictor fails with a clear error.
     """
 
     def __init__(self, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], source: str = "<arrays>") -> None:
@@ -182,15 +202,16 @@ class LearnedPolicy:
         if fmt not in formats:
             raise PolicyFileError(f"{source}: format {fmt!r}, expected one of {formats}")
         try:
-            self.keys = tuple(self.meta["observation_keys"])
-            self.shapes = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
+            self.keys = tuple(str(k) for k in self.meta["observation_keys"])
+            recorded = {str(k): tuple(int(n) for n in v) for k, v in self.meta["observation_shapes"].items()}
+            if set(recorded) != set(self.keys) or len(self.keys) != len(recorded):
+                raise ValueError(f"observation_keys {list(self.keys)} and observation_shapes {sorted(recorded)} "
+                                 "name different keys")
+            self.shapes = {k: recorded[k] for k in self.keys}  # in the flat vector's order, whatever the record's
             self.activation = str(self.meta["activation"]) if fmt == ACTOR_FORMAT_V2 else "relu"
             self.head = str(self.meta["head"]) if fmt == ACTOR_FORMAT_V2 else "tanh"
             self.weights, self.biases = _layers(arrays, "")
-            self.sets: dict[str, list[str]] = (
-                {str(n): [str(k) for k in keys] for n, keys in self.meta["sets"].items()}
-                if fmt == ACTOR_FORMAT_SETS else {}
-            )
+            self.sets: dict[str, list[str]] = _sets_record(self.meta["sets"]) if fmt == ACTOR_FORMAT_SETS else {}
             self.encoders = {name: _layers(arrays, f"{name}.") for name in self.sets}
             self.norm_enabled = bool(arrays["norm_enabled"])
             self.norm_mean = np.asarray(arrays["norm_mean"], dtype=np.float64)
@@ -199,7 +220,7 @@ class LearnedPolicy:
             self.action_table = (
                 np.asarray(arrays["action_table"], dtype=np.float64) if self.head == "argmax" else None
             )
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as err:
             raise PolicyFileError(f"{source}: not a complete deck_sim actor ({err!r} missing or malformed)") from err
         if self.activation not in ACTIVATIONS:
             raise PolicyFileError(f"{source}: activation {self.activation!r}, expected one of {ACTIVATIONS}")
@@ -212,6 +233,11 @@ class LearnedPolicy:
                 self._context, self._elements = set_indices(self.shapes, self.sets)
             except ValueError as err:
                 raise PolicyFileError(f"{source}: {err}") from err
+        stray = sorted(k for k in arrays if re.fullmatch(r"(.+)\.[wb]\d+", k) and k.split(".")[0] not in self.sets)
+        if stray:
+            raise PolicyFileError(f"{source}: arrays {stray[:5]} are set encoders, but the file's format {fmt!r} "
+                                  f"names the sets {sorted(self.sets)}")
+        if self.sets:
             head_in = len(self._context)
             for name, (ws, bs) in self.encoders.items():
                 if not ws:
@@ -326,6 +352,16 @@ class LearnedPolicy:
     def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The actor's action (2,) for one observation dict."""
         return self.act_flat(self.flatten(observation))
+
+
+def _sets_record(record: Any) -> dict[str, list[str]]:
+    """A set actor's ``meta["sets"]`` (set name -> its observation keys) checked; ``ValueError`` if malformed."""
+    if not isinstance(record, dict) or not record:
+        raise ValueError(f"'sets' must map each set's name to its keys, got {record!r}")
+    for name, keys in record.items():
+        if not isinstance(keys, list) or not keys or not all(isinstance(k, str) for k in keys):
+            raise ValueError(f"'sets': set {name!r} must list its observation keys, got {keys!r}")
+    return {str(name): list(keys) for name, keys in record.items()}
 
 
 def _layers(arrays: Mapping[str, np.ndarray], prefix: str) -> tuple[list[np.ndarray], list[np.ndarray]]:

@@ -16,6 +16,15 @@ settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 SCENES = ("deck1", "deck2", "square")
+NEAR = {  # scene fields of an empty deck 1 (no movers, only the island) with a near target: a short run learns it
+    "static__slotted": 0,
+    "movers__tractors": 0,
+    "movers__aircraft": 0,
+    "agent__start_sites": ["start_5"],
+    "agent__target_sites": ["start_1", "start_2"],  # 18-22 m ahead of the start
+    "agent__min_target_distance": 10.0,
+    "agent__max_target_distance": 30.0,
+}
 
 
 @pytest.fixture(scope="session")

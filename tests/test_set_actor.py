@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from conftest import short_config
+from conftest import NEAR, short_config
 
 from deck_sim.policies import (
     ACTOR_FORMAT_SETS,
+    EnsemblePolicy,
     LearnedPolicy,
     PolicyFileError,
     load_actor,
@@ -77,6 +78,37 @@ def test_the_set_layout_reads_each_obstacle_row_across_its_keys(shapes):
         set_indices(shapes, {"mixed": ["dynamic_obstacles", "static_obstacles"]})
 
 
+@pytest.mark.parametrize("shape_fields", [False, True], ids=["paper-observation", "obstacle-shapes"])
+def test_each_obstacle_row_gathers_that_obstacles_values_from_every_key_of_its_set(shape_fields):
+    # an observation whose every entry names its key, obstacle and column, flattened as the policy flattens it;
+    # each row of a set must be that obstacle's values, key after key (a check that does not use set_indices' own
+    # arithmetic)
+    env = make_env("deck1", "mpc", episode__mover_size=True, episode__obstacle_shape=shape_fields)
+    shapes = env_layout(env).shapes
+    env.close()
+    sets = obstacle_sets(shapes)
+    if shape_fields:
+        assert sets["statics"] == ["static_obstacles", "static_nearest"]
+        assert sets["movers"][-2:] == ["dynamic_nearest", "dynamic_heading"]
+    observation = {
+        k: (1000.0 * i + np.arange(int(np.prod(s)), dtype=float)).reshape(s) for i, (k, s) in enumerate(shapes.items())
+    }
+    meta = {"format": "deck_sim.actor/1", "observation_keys": list(shapes),
+            "observation_shapes": {k: list(v) for k, v in shapes.items()}}
+    dim = sum(int(np.prod(s)) for s in shapes.values())
+    flat = LearnedPolicy({"w0": np.zeros((2, dim)), "b0": np.zeros(2), "norm_enabled": np.array(False),
+                          "norm_mean": np.zeros(dim), "norm_std": np.ones(dim), "norm_clip": np.array(10.0)},
+                         meta).flatten(observation)
+    context, elements = set_indices(shapes, sets)
+    for name, keys in sets.items():
+        for j in range(shapes[keys[0]][0]):
+            expected = np.concatenate([observation[k][j].ravel() for k in keys])
+            np.testing.assert_array_equal(flat[elements[name][j]], expected, err_msg=f"{name} row {j}")
+    in_sets = {k for keys in sets.values() for k in keys}
+    expected_context = np.concatenate([observation[k].ravel() for k in shapes if k not in in_sets])
+    np.testing.assert_array_equal(flat[context], expected_context)
+
+
 def test_the_exported_set_actor_acts_as_the_torch_one_whatever_the_order_of_the_movers(shapes):
     agent = _agent(shapes)
     policy = _policy(agent)
@@ -135,6 +167,26 @@ def test_broken_set_actor_files_are_refused_by_name(shapes, tmp_path):
         LearnedPolicy(nan, meta)
     with pytest.raises(PolicyFileError, match="not a complete deck_sim actor"):
         LearnedPolicy(arrays, {k: v for k, v in meta.items() if k != "sets"})
+    with pytest.raises(PolicyFileError, match="'sets' must map"):
+        LearnedPolicy(arrays, {**meta, "sets": [["dynamic_obstacles"]]})
+    with pytest.raises(PolicyFileError, match="must list its observation keys"):
+        LearnedPolicy(arrays, {**meta, "sets": {"movers": "dynamic_obstacles", "statics": ["static_obstacles"]}})
+    with pytest.raises(PolicyFileError, match="more than once"):
+        LearnedPolicy(arrays, {**meta, "sets": {"movers": meta["sets"]["movers"],
+                                                "statics": ["static_obstacles", "dynamic_size"]}})
+    with pytest.raises(PolicyFileError, match="no row per obstacle"):
+        LearnedPolicy(arrays, {**meta, "observation_shapes": {**meta["observation_shapes"], "static_obstacles": []}})
+    with pytest.raises(PolicyFileError, match=r"are set encoders.*\['movers'\]"):
+        LearnedPolicy({k: v for k, v in arrays.items() if k != "statics.w0"} | {"statics.w9": arrays["statics.w0"]},
+                      {**meta, "sets": {"movers": meta["sets"]["movers"]}})
+    with pytest.raises(PolicyFileError, match="are set encoders"):
+        LearnedPolicy(arrays, {**meta, "format": "deck_sim.actor/1"})
+    with pytest.raises(PolicyFileError, match="name different keys"):
+        LearnedPolicy(arrays, {**meta, "observation_keys": meta["observation_keys"][:-1]})
+    # the shapes' record in another order changes nothing: the flat vector follows observation_keys
+    shuffled = {**meta, "observation_shapes": dict(reversed(list(meta["observation_shapes"].items())))}
+    x = np.random.default_rng(3).normal(0.0, 10.0, size=(5, agent.obs_dim))
+    np.testing.assert_array_equal(LearnedPolicy(arrays, shuffled).act_flat(x), LearnedPolicy(arrays, meta).act_flat(x))
 
 
 def test_set_actor_config_errors_name_the_field(shapes):
@@ -176,3 +228,34 @@ def test_a_set_actor_run_resumes_exactly_polishes_and_exports_an_actor_that_acts
     env = deck_sim.load("deck1", seed=0, **policy.scene_overrides)
     action = policy.act(env.reset().observation)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_an_ensemble_of_set_actors_acts_by_the_mean_of_the_agents_actions(shapes, tmp_path):
+    agents = [_agent(shapes, seed=0), _agent(shapes, seed=1)]
+    path = EnsemblePolicy([_policy(a) for a in agents]).save(tmp_path / "pair.npz")
+    ensemble = load_actor(path)
+    assert isinstance(ensemble, EnsemblePolicy)
+    assert [m.meta["format"] for m in ensemble.members] == [ACTOR_FORMAT_SETS] * 2
+    x = np.random.default_rng(4).normal(3.0, 20.0, size=(40, agents[0].obs_dim))
+    expected = (agents[0].act(x) + agents[1].act(x)) / 2
+    assert not np.allclose(agents[0].act(x), agents[1].act(x), atol=1e-2)
+    np.testing.assert_allclose(ensemble.act_flat(x), expected, atol=1e-5)
+
+
+def test_a_set_actor_on_a_deck_without_movers_reads_the_statics_alone(tmp_path):
+    # no movers: the movers' keys have 0 rows, so the actor has no movers' encoder (a max over no mover would be
+    # undefined); a set asked to hold no obstacle is refused by name
+    env = make_env("deck1", "mpc", episode__mover_size=True, **NEAR)
+    shapes = env_layout(env).shapes
+    env.close()
+    assert shapes["dynamic_obstacles"] == (0, 2)
+    assert obstacle_sets(shapes) == {"statics": ["static_obstacles"]}
+    with pytest.raises(ValueError, match="set 'movers' holds no obstacle"):
+        set_indices(shapes, {"movers": ["dynamic_obstacles", "predicted"]})
+    cfg = _short(total_steps=60, scene_overrides={"episode__mover_size": True, **NEAR})
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    trainer.train()
+    policy = load_actor(tmp_path / "run" / "actor.npz")
+    assert policy.sets == {"statics": ["static_obstacles"]} and "movers.w0" not in policy.arrays
+    obs = trainer.buffer.obs[: trainer.buffer.size]
+    np.testing.assert_allclose(policy.act_flat(obs), trainer.agent.act(obs), atol=1e-5)

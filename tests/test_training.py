@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import NEAR
 from conftest import short_config as _short
 
 from training.buffers import ReplayBuffer
@@ -186,15 +187,6 @@ def test_config_errors_name_the_field():
 
 
 # -- runs on real scenes -------------------------------------------------------------------------------------------
-NEAR = {  # an empty deck with a near target: something a short run can learn
-    "static__slotted": 0,
-    "movers__tractors": 0,
-    "movers__aircraft": 0,
-    "agent__start_sites": ["start_5"],
-    "agent__target_sites": ["start_1", "start_2"],  # 18-22 m ahead of the start
-    "agent__min_target_distance": 10.0,
-    "agent__max_target_distance": 30.0,
-}
 
 
 def _rows(path):  # noqa: ANN001, ANN202
