@@ -118,8 +118,10 @@ class _Slot:
 
 
 def _actor_meta(
-    config: TrainConfig, layout: ObservationLayout, agent: DDPGAgent, step: int, polished: bool = False
+    config: TrainConfig, layout: ObservationLayout, agent: DDPGAgent, step: int, commit: str, polished: bool = False
 ) -> dict[str, Any]:
+    """The record of an exported actor; ``commit`` is the source the training process runs (read at its start:
+    the tree may change while a long run goes on)."""
     return {
         **agent.actor_meta(),
         "scene": config.scene,
@@ -132,7 +134,7 @@ def _actor_meta(
         "polished": bool(polished),
         "config": config.to_dict(),
         "deck_sim_version": deck_sim.__version__,
-        "git_commit": git_commit(),
+        "git_commit": commit,
     }
 
 
@@ -180,6 +182,7 @@ class Trainer:
         self.config = config.validate()
         self.run_dir = Path(run_dir)
         self.progress = progress
+        self.commit = git_commit()  # the code this process runs, whatever the tree holds when an actor is written
         self._resume_state: dict[str, Any] | None = None
         if resume:
             self._resume_state = load_checkpoint(self.run_dir / "checkpoint.pt")
@@ -353,7 +356,7 @@ class Trainer:
                 self.save_checkpoint()
                 owed = False
             if not owed:  # (a run stopped while its polish is owed is not finished: no actor.npz yet)
-                meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.polished)
+                meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.commit, self.polished)
                 save_actor(self.run_dir / "actor.npz", self.agent, meta)
         self._tb.close()
         return {
@@ -495,7 +498,8 @@ class Trainer:
     # -- evaluation ---------------------------------------------------------------------------------------------
     def actor_policy(self) -> LearnedPolicy:
         """The current greedy actor as the policy an exported file would give."""
-        return LearnedPolicy(self.agent.export_actor(), _actor_meta(self.config, self.layout, self.agent, self.step))
+        meta = _actor_meta(self.config, self.layout, self.agent, self.step, self.commit)
+        return LearnedPolicy(self.agent.export_actor(), meta)
 
     def evaluate(self, episodes: int | None = None) -> dict[str, Any]:
         """Play ``eval_episodes`` held-out episodes (seed ``eval_seed``, the full scene) with the greedy actor."""
@@ -519,7 +523,7 @@ class Trainer:
         summary["success"] = summary["goal_rate"]
         if summary["success"] > self.best_success:
             self.best_success = summary["success"]
-            meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.polished)
+            meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.commit, self.polished)
             save_actor(self.run_dir / "actor_best.npz", self.agent, meta)
         return summary
 
