@@ -384,7 +384,7 @@ class ShippedArm(NamedTuple):
 
 
 SHIPPED_RECIPES: dict[str, ShippedArm] = {
-    "deck1": ShippedArm("tuned-{algo}-with-data+polish+size", 160_000, 20_000, 100, (0, 1)),
+    "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
     "deck2": ShippedArm("tuned-{algo}-with-data+polish+size", 320_000, 20_000, 100, (0, 1)),
     "square": ShippedArm("tuned-{algo}-with-data+polish+near", 160_000, 20_000, 100, (0, 1)),
 }
@@ -400,7 +400,9 @@ steps (320,000): its seed-500 curves were still moving at 160,000, and its MDDPG
 self and DDPG at 320,000 on both held-out streams (``docs/training.md``, "Twice the steps on deck 2"). Both decks
 ship two seeds of each agent, acting by the mean of their actions: on the held-out streams the pair was at least as
 good as its better member in 7 of 8 comparisons (``docs/training.md``, "Averaging the actions of two seeds"); on
-the square, shipped the same way since, in 3 of 4."""
+the square, shipped the same way since, in 3 of 4. Deck 1's actors read the obstacles through the set actor
+(``sets``: one shared, max-pooled encoder per set of obstacles) since session 16: with it one seed of each agent
+beat the MLP pairs on both held-out streams (``docs/training.md``, "The set actor")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:
