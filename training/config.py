@@ -385,25 +385,24 @@ class ShippedArm(NamedTuple):
 
 SHIPPED_RECIPES: dict[str, ShippedArm] = {
     "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
-    "deck2": ShippedArm("tuned-{algo}-with-data+polish+size", 320_000, 20_000, 100, (0, 1)),
+    "deck2": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
     "square": ShippedArm("tuned-{algo}-with-data+polish+near", 160_000, 20_000, 100, (0, 1)),
 }
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
 ``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned`` and
-ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on the decks (deck 2
-trains twice as long, below), 46-48 min per run on the square (two runs sharing the cores, against 23-30 min for
-40,000). On the decks the observation also carries each mover's footprint size (``size``), which the square's
-pedestrians, all 0.3 m discs, do not need; on the square it carries the target and the square's edges at a near
-scale (``near``), without which the walker, reading metres at the scale of a 100 m square, walked off it in 28.5 %
-(MDDPG) and 29.0 % (DDPG) of the held-out episodes (``docs/training.md``, the square). Deck 2 trains for twice the
-steps (320,000): its seed-500 curves were still moving at 160,000, and its MDDPG at 320,000 led its 160,000-step
-self and DDPG at 320,000 on both held-out streams (``docs/training.md``, "Twice the steps on deck 2"). Both decks
-ship two seeds of each agent, acting by the mean of their actions: on the held-out streams the MLP pair was at
-least as good as its better member in 7 of 8 comparisons on the decks (``docs/training.md``, "Averaging the
-actions of two seeds") and in 3 of 4 on the square, shipped the same way since. Deck 1's actors read the
-obstacles through the set actor (``sets``: one shared, max-pooled encoder per set of obstacles) since session 16:
-its two seeds' pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP pairs'
-90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor")."""
+ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on the decks, 46-48
+min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the decks the observation
+also carries each mover's footprint size (``size``), which the square's pedestrians, all 0.3 m discs, do not need;
+on the square it carries the target and the square's edges at a near scale (``near``), without which the walker,
+reading metres at the scale of a 100 m square, walked off it in 28.5 % (MDDPG) and 29.0 % (DDPG) of the held-out
+episodes (``docs/training.md``, the square). Every scene ships two seeds of each agent, acting by the mean of their
+actions: on the held-out streams the MLP pair was at least as good as its better member in 7 of 8 comparisons on
+the decks (``docs/training.md``, "Averaging the actions of two seeds") and in 3 of 4 on the square. Since session
+16 the decks' actors read the obstacles through the set actor (``sets``: one shared, max-pooled encoder per set of
+obstacles): deck 1's pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP
+pairs' 90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor"), and deck 2's,
+at 160,000 steps, beat the MLP pairs of 320,000 steps (the MLP needed twice the steps there; ``docs/training.md``,
+"Twice the steps on deck 2" and "Deck 2: the set actor at half the steps")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:
