@@ -42,6 +42,15 @@ def world_to_agent(vectors: np.ndarray, yaw: float) -> np.ndarray:
     return np.asarray(vectors, dtype=np.float64) @ rotation(np.float64(yaw))
 
 
+def clip_length(vectors: np.ndarray, max_length: float) -> np.ndarray:
+    """Vectors (..., 2) with each one's length clipped to ``max_length`` metres (> 0), its direction kept; a new
+    array."""
+    v = np.asarray(vectors, dtype=float)
+    length = np.hypot(v[..., 0], v[..., 1])
+    scale = np.where(length > max_length, max_length / np.maximum(length, 1e-300), 1.0)
+    return v * scale[..., None]
+
+
 def agent_to_world(vectors: np.ndarray, yaw: float) -> np.ndarray:
     """The inverse of ``world_to_agent``: vectors (..., 2) in the agent's axes, in the world's."""
     return np.asarray(vectors, dtype=np.float64) @ rotation(np.float64(yaw)).T

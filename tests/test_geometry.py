@@ -5,7 +5,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along, polyline_length
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, clip_length, points_along, polyline_length
 
 coord = st.floats(-50, 50, allow_nan=False)
 size = st.floats(0.1, 10, allow_nan=False)
@@ -183,3 +183,21 @@ def test_points_along_lie_on_the_polyline_at_their_arc_length(vertices, distance
         start = float(np.sum(seg[:k]))
         expected = path[k] + (path[k + 1] - path[k]) * (d - start) / seg[k]
         np.testing.assert_allclose(p, expected, atol=1e-6)
+
+
+@given(
+    st.lists(st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)), min_size=1, max_size=8),
+    st.floats(1e-3, 50.0),
+)
+def test_clip_length_caps_each_vector_keeping_its_direction(vectors, max_length):
+    v = np.array(vectors)
+    out = clip_length(v, max_length)
+    length, clipped = np.linalg.norm(v, axis=1), np.linalg.norm(out, axis=1)
+    assert np.all(clipped <= max_length * (1 + 1e-12))
+    short = length <= max_length
+    np.testing.assert_array_equal(out[short], v[short])  # inside the range: untouched
+    np.testing.assert_allclose(clipped[~short], max_length, rtol=1e-9)  # outside: on the range's circle...
+    cross = v[:, 0] * out[:, 1] - v[:, 1] * out[:, 0]
+    np.testing.assert_allclose(cross, 0.0, atol=1e-9 * max(1.0, float(length.max())))  # ...along the same line
+    assert np.all(np.einsum("ij,ij->i", v, out) >= 0.0)  # ...pointing the same way
+    assert clip_length(v[None], max_length).shape == (1, *v.shape)  # any leading shape

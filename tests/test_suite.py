@@ -169,6 +169,45 @@ def test_mover_size_observation_follows_the_movers_order():
     assert lengths[-1] > 17.0 and lengths[0] < 5.0
 
 
+def test_near_obstacles_observation_gives_each_footprints_nearest_point_clipped_to_the_near_field():
+    import deck_sim
+    from deck_sim.geometry import clip_length
+    from deck_sim.policies import ScriptedPolicy
+    from deck_sim.scenes import SceneSpecError
+
+    assert "static_near" not in deck_sim.load("square", seed=4, episode__near_steps=4).observation_spec()
+    with pytest.raises(SceneSpecError, match=r"near_obstacles.*near_steps > 0"):
+        deck_sim.load("square", seed=4, episode__near_obstacles=True)
+    env = deck_sim.load(
+        "square", seed=4, episode__near_steps=4, episode__near_obstacles=True, episode__obstacle_shape=True
+    )
+    spec = env.observation_spec()
+    m, n = spec["static_obstacles"].shape[0], spec["dynamic_obstacles"].shape[0]
+    assert spec["static_near"].shape == (m, 2) and spec["dynamic_near"].shape == (n, 2)
+    near = 4 * env.task.spec.agent.reach
+    policy = ScriptedPolicy(env)
+    ts, closest = env.reset(), np.inf
+    while not ts.last():
+        obs = ts.observation
+        # the footprints' nearest points (checked against the planner's view by the shape test), clipped
+        np.testing.assert_allclose(obs["static_near"], clip_length(obs["static_nearest"], near), atol=1e-12)
+        np.testing.assert_allclose(obs["dynamic_near"], clip_length(obs["dynamic_nearest"], near), atol=1e-12)
+        lengths = np.linalg.norm(obs["static_near"], axis=1)
+        assert np.all(lengths <= near + 1e-9)
+        closest = min(closest, float(lengths.min()))
+        ts = env.step(policy.act(obs))
+    assert closest < near  # the walk passed an obstacle inside the near field
+    # the agent's axes turn the new vectors like every other relative vector
+    ego = deck_sim.load("square", seed=4, episode__near_steps=4, episode__near_obstacles=True, episode__frame="agent")
+    world = deck_sim.load("square", seed=4, episode__near_steps=4, episode__near_obstacles=True)
+    a, b = ego.reset().observation, world.reset().observation
+    np.testing.assert_allclose(np.linalg.norm(a["static_near"], axis=1), np.linalg.norm(b["static_near"], axis=1))
+    yaw = np.arctan2(b["heading"][1], b["heading"][0])
+    from deck_sim.geometry import world_to_agent
+
+    np.testing.assert_allclose(a["dynamic_near"], world_to_agent(b["dynamic_near"], yaw), atol=1e-9)
+
+
 def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():
     import deck_sim
     from deck_sim.policies import ScriptedPolicy

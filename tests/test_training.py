@@ -519,6 +519,9 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert near.scene_overrides == {"episode__near_steps": 4} and near.polish_epochs == 20
     ego = arm_config("tuned-ddpg-with-data+polish+size+ego", "deck1", steps=10_000, seed=0)
     assert ego.scene_overrides == {"episode__mover_size": True, "episode__frame": "agent"}
+    close = arm_config("tuned-mddpg-with-data+polish+near+sets+close", "square", steps=10_000, seed=0)
+    assert close.scene_overrides == {"episode__near_steps": 4, "episode__near_obstacles": True}
+    assert close.actor_arch == "sets"
     from training.config import SHIPPED_RECIPES, shipped_arm
 
     for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm
@@ -632,11 +635,13 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
 def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_path):
     import deck_sim
     from deck_sim.policies import LearnedPolicy, PolicyFileError
+    from deck_sim.scenes import SceneSpecError
 
     overrides = {
         "episode__predicted_frame": "mover",
         "episode__mover_size": True,
         "episode__near_steps": 2,
+        "episode__near_obstacles": True,
         "episode__route_steps": 3,
         "episode__frame": "agent",  # the same keys and shapes as the deck's axes: only the record tells them apart
     }
@@ -655,10 +660,14 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     assert "episode__time_limit" not in policy.scene_overrides
     del policy.meta["scene_overrides"]["episode__control_period"], policy.meta["scene_overrides"]["episode__time_limit"]
     assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
+    assert "static_near" in policy.keys and "dynamic_near" in policy.keys
     assert policy.shapes["route"] == (3, 2)
     # an actor whose near field came from its scene file asks for no range; a scene without one is refused
     del policy.meta["scene_overrides"]["episode__near_steps"]
     assert "episode__near_steps" not in policy.scene_overrides
-    env = deck_sim.load("deck1", seed=0, **policy.scene_overrides)
+    with pytest.raises(SceneSpecError, match="near_obstacles: needs a near field"):  # its near obstacles need one
+        deck_sim.load("deck1", seed=0, **policy.scene_overrides)
+    overrides = {k: v for k, v in policy.scene_overrides.items() if k != "episode__near_obstacles"}
+    env = deck_sim.load("deck1", seed=0, **overrides)
     with pytest.raises(PolicyFileError, match="needs observation 'target_near'"):
         policy.flatten(env.reset().observation)

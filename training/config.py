@@ -353,6 +353,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "widepolish": {"polish_epochs": 40, "polish_hidden": (512, 512, 512)},
     "route": {"scene_overrides": {"episode__route_steps": 10}},
     "sets": {"actor_arch": "sets"},
+    "close": {"scene_overrides": {"episode__near_steps": 4, "episode__near_obstacles": True}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -366,7 +367,9 @@ longer; ``size``: each mover's footprint size in the observation, scene field ``
 observation's vectors and the action in the agent's own axes, ``episode.frame = "agent"``; ``widepolish``: the
 final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``; ``route``: the next 10 steps' reach
 of the shortest way round the static obstacles in the observation, ``episode.route_steps``; ``sets``: the actor
-reads the movers and the statics through one shared, max-pooled encoder per set, ``actor_arch = "sets"``). Several
+reads the movers and the statics through one shared, max-pooled encoder per set, ``actor_arch = "sets"``;
+``close``: the near field of ``near`` and, in it, every obstacle's nearest point at that scale,
+``episode.near_obstacles``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

@@ -44,7 +44,7 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along, world_to_agent
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, clip_length, points_along, world_to_agent
 from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
@@ -75,6 +75,8 @@ _TURNED_KEYS = (
     "dynamic_nearest",
     "dynamic_heading",
     "target_near",
+    "static_near",
+    "dynamic_near",
     "route",
     "velocity",
 )
@@ -295,6 +297,8 @@ class Navigate(composer.Task):
             shapes["dynamic_size"] = (n, 2)
         if self._near > 0:
             shapes.update({"target_near": (2,), "edge_near": (4,)})
+            if self.spec.episode.near_obstacles:
+                shapes.update({"static_near": (m, 2), "dynamic_near": (n, 2)})
         if self._route_steps > 0:
             shapes["route"] = (self._route_steps, 2)
         shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
@@ -935,9 +939,13 @@ class Navigate(composer.Task):
         if self._horizon > 0:
             origin = agent_xy if self._predicted_from_agent else st["xy"][1:][order_m][:, None]
             obs["predicted"] = self._prediction.positions[order_m] - origin
+        static_nearest = dynamic_nearest = None
+        if self.spec.episode.obstacle_shape or (self._near > 0 and self.spec.episode.near_obstacles):
+            static_nearest = self._static_fp.nearest_points(agent_xy)[order_s] - agent_xy
+            dynamic_nearest = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
         if self.spec.episode.obstacle_shape:
-            obs["static_nearest"] = self._static_fp.nearest_points(agent_xy)[order_s] - agent_xy
-            obs["dynamic_nearest"] = self._mover_footprints(st).nearest_points(agent_xy)[order_m] - agent_xy
+            obs["static_nearest"] = static_nearest
+            obs["dynamic_nearest"] = dynamic_nearest
             yaw = st["yaw"][1:][order_m]
             obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
         if self.spec.episode.mover_size:
@@ -948,6 +956,9 @@ class Navigate(composer.Task):
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
             lo, hi = self._arena.bounds
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
+            if static_nearest is not None and dynamic_nearest is not None:
+                obs["static_near"] = clip_length(static_nearest, near)
+                obs["dynamic_near"] = clip_length(dynamic_nearest, near)
         if self._route_steps > 0:
             obs["route"] = self.route_points(agent_xy) - agent_xy
         # ``st`` holds fresh arrays every step that nothing writes to afterwards: rows are handed out as views
