@@ -4,7 +4,7 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 - ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
   ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks
-  ``tuned-<algo>-with-data+polish+size``, 160,000 steps on deck 1 and 320,000 on deck 2) per seed of the recipe's
+  ``tuned-<algo>-with-data+polish+size+sets``, 160,000 steps) per seed of the recipe's
   ``seeds`` (or ``--seeds``), each in ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py``
   writes for that arm, so seeds trained there in parallel are found finished). DDPG is MDDPG without prediction
   (predictor ``none``), same recipe, seeds and budget. With several seeds the shipped file is an ensemble
@@ -16,8 +16,8 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
 
 MDDPG and DDPG of a scene train for the same number of environment steps (``SHIPPED_RECIPES``); DQN and A2C
 for ``SB3_STEPS[scene]`` (the budget of the first shipped actors: 40,000 steps on deck 1 and the square, 60,000
-on deck 2). The decks' DDPG recipe runs 160,000 steps (deck 1; deck 2 twice that) in about the wall-clock time
-its first recipe took for 40,000, by collecting four transitions per update instead of two. ``--steps`` sets one
+on deck 2). The MDDPG and DDPG recipes run 160,000 steps in about the wall-clock time the first recipe took for
+40,000 on the decks, by collecting four transitions per update instead of two. ``--steps`` sets one
 budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The

@@ -533,7 +533,9 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert shipped_arm("deck2", "ddpg")[:2] == ("tuned-ddpg-with-data+polish+size+sets", 160_000)
     for deck in ("deck1", "deck2", "square"):  # two seeds' actors averaged, MDDPG and DDPG alike
         assert shipped_arm(deck, "ddpg").seeds == shipped_arm(deck, "mddpg").seeds == (0, 1)
-    assert shipped_arm("square", "mddpg") == ("tuned-mddpg-with-data+polish+near", 160_000, 20_000, 100, (0, 1))
+    assert shipped_arm("square", "mddpg") == (
+        "tuned-mddpg-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)
+    )
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)

@@ -389,7 +389,7 @@ class ShippedArm(NamedTuple):
 SHIPPED_RECIPES: dict[str, ShippedArm] = {
     "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
     "deck2": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
-    "square": ShippedArm("tuned-{algo}-with-data+polish+near", 160_000, 20_000, 100, (0, 1)),
+    "square": ShippedArm("tuned-{algo}-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)),
 }
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
 ``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned`` and
@@ -405,7 +405,10 @@ the decks (``docs/training.md``, "Averaging the actions of two seeds") and in 3 
 obstacles): deck 1's pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP
 pairs' 90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor"), and deck 2's,
 at 160,000 steps, beat the MLP pairs of 320,000 steps (the MLP needed twice the steps there; ``docs/training.md``,
-"Twice the steps on deck 2" and "Deck 2: the set actor at half the steps")."""
+"Twice the steps on deck 2" and "Deck 2: the set actor at half the steps"). Since session 17 the square's actors
+are set actors too, reading every obstacle's nearest point within the near field at that field's scale
+(``close``): without it the set actor ran into the square's standing groups (``docs/training.md``, "The obstacles
+in the near field")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:
