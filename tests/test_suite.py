@@ -197,15 +197,22 @@ def test_near_obstacles_observation_gives_each_footprints_nearest_point_clipped_
         closest = min(closest, float(lengths.min()))
         ts = env.step(policy.act(obs))
     assert closest < near  # the walk passed an obstacle inside the near field
-    # the agent's axes turn the new vectors like every other relative vector
-    ego = deck_sim.load("square", seed=4, episode__near_steps=4, episode__near_obstacles=True, episode__frame="agent")
-    world = deck_sim.load("square", seed=4, episode__near_steps=4, episode__near_obstacles=True)
-    a, b = ego.reset().observation, world.reset().observation
-    np.testing.assert_allclose(np.linalg.norm(a["static_near"], axis=1), np.linalg.norm(b["static_near"], axis=1))
-    yaw = np.arctan2(b["heading"][1], b["heading"][0])
+    # the agent's axes turn the new vectors like every other relative vector: expected from the planner's view
     from deck_sim.geometry import world_to_agent
 
-    np.testing.assert_allclose(a["dynamic_near"], world_to_agent(b["dynamic_near"], yaw), atol=1e-9)
+    # (on the deck: the square's walker keeps its yaw, the aircraft turns)
+    ego = deck_sim.load("deck1", seed=4, episode__near_steps=4, episode__near_obstacles=True, episode__frame="agent")
+    near = 4 * ego.task.spec.agent.reach
+    ts = ego.reset()
+    for _ in range(6):
+        ts = ego.step(np.array([0.5, 0.5]))  # ahead and to the left: the aircraft turns off the deck's axes
+    obs, view = ts.observation, ego.task.planner_view()
+    yaw = np.arctan2(obs["heading"][1], obs["heading"][0])
+    assert abs(np.sin(yaw)) > 0.1  # a heading off the axes: a missed turn would show
+    for key, fp in (("static_near", view.statics), ("dynamic_near", view.movers)):
+        order = np.argsort(np.linalg.norm(fp.centers - view.agent_xy, axis=1), kind="stable")
+        world_rows = clip_length(fp.nearest_points(view.agent_xy)[order] - view.agent_xy, near)
+        np.testing.assert_allclose(obs[key], world_to_agent(world_rows, yaw), atol=1e-9, err_msg=key)
 
 
 def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():

@@ -421,6 +421,26 @@ def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
         assert any(np.allclose(action, row) for row in discrete_actions())
 
 
+def test_left_out_movers_read_as_beyond_the_near_field():
+    from training.envs import mover_pad_fills
+
+    cfg = make_config(scene="square", scene_overrides={"episode__near_steps": 4, "episode__near_obstacles": True})
+    fills = mover_pad_fills(cfg)
+    near = 4 * 0.75  # the square's reach
+    assert fills == {"dynamic_near": pytest.approx(near / np.sqrt(2))}
+    assert mover_pad_fills(make_config(scene_overrides={"episode__predicted_frame": "mover"})) == {"predicted": 0.0}
+    assert mover_pad_fills(make_config()) == {}
+    full = ObservationLayout({"target": (2,), "dynamic_obstacles": (3, 2), "dynamic_near": (3, 2)})
+    stage = ObservationLayout({"target": (2,), "dynamic_obstacles": (1, 2), "dynamic_near": (1, 2)})
+    flat = np.arange(6, dtype=float)[None]
+    padded = stage.pad_to(flat, full, fills).reshape(1, -1)
+    sl = full.slices()
+    rows = padded[0, sl["dynamic_near"]].reshape(3, 2)
+    np.testing.assert_array_equal(rows[0], [4.0, 5.0])  # the stage's own mover, kept first
+    np.testing.assert_allclose(np.linalg.norm(rows[1:], axis=1), near)  # the left-out ones: on the field's edge
+    np.testing.assert_array_equal(padded[0, sl["dynamic_obstacles"]][2:], FAR)
+
+
 def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
     from training.config import CurriculumStage
 

@@ -394,21 +394,22 @@ SHIPPED_RECIPES: dict[str, ShippedArm] = {
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
 ``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned`` and
 ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on the decks, 46-48
-min per run on the square (two runs sharing the cores, against 23-30 min for 40,000). On the decks the observation
-also carries each mover's footprint size (``size``), which the square's pedestrians, all 0.3 m discs, do not need;
-on the square it carries the target and the square's edges at a near scale (``near``), without which the walker,
-reading metres at the scale of a 100 m square, walked off it in 28.5 % (MDDPG) and 29.0 % (DDPG) of the held-out
-episodes (``docs/training.md``, the square). Every scene ships two seeds of each agent, acting by the mean of their
-actions: on the held-out streams the MLP pair was at least as good as its better member in 7 of 8 comparisons on
-the decks (``docs/training.md``, "Averaging the actions of two seeds") and in 3 of 4 on the square. Since session
-16 the decks' actors read the obstacles through the set actor (``sets``: one shared, max-pooled encoder per set of
-obstacles): deck 1's pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP
-pairs' 90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor"), and deck 2's,
-at 160,000 steps, beat the MLP pairs of 320,000 steps (the MLP needed twice the steps there; ``docs/training.md``,
-"Twice the steps on deck 2" and "Deck 2: the set actor at half the steps"). Since session 17 the square's actors
-are set actors too, reading every obstacle's nearest point within the near field at that field's scale
-(``close``): without it the set actor ran into the square's standing groups (``docs/training.md``, "The obstacles
-in the near field")."""
+min per MLP run on the square (two runs sharing the cores, against 23-30 min for 40,000; the set-actor runs shipped
+since session 17 took 68-88 min with four to six runs on the cores). On the decks the observation also carries each
+mover's footprint size (``size``), which the square's pedestrians, all 0.3 m discs, do not need; on the square it
+carries the target and the square's edges at a near scale (``near``), without which the walker, reading metres at the
+scale of a 100 m square, walked off it in 28.5 % (MDDPG) and 29.0 % (DDPG) of the held-out episodes
+(``docs/training.md``, the square). Every scene ships two seeds of each agent, acting by the mean of their actions:
+on the held-out streams the MLP pair was at least as good as its better member in 7 of 8 comparisons on the decks
+(``docs/training.md``, "Averaging the actions of two seeds") and in 3 of 4 on the square; the square's set-actor
+pairs shipped since session 17 are in 3 of 6 (the recipe keeps the pairs its shipping rule named). Since session 16
+the decks' actors read the obstacles through the set actor (``sets``: one shared, max-pooled encoder per set of
+obstacles): deck 1's pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP pairs'
+90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor"), and deck 2's, at 160,000
+steps, beat the MLP pairs of 320,000 steps (the MLP needed twice the steps there; ``docs/training.md``, "Twice the
+steps on deck 2" and "Deck 2: the set actor at half the steps"). Since session 17 the square's actors are set actors
+too, reading every obstacle's nearest point within the near field at that field's scale (``close``): without it the
+set actor ran into the square's standing groups (``docs/training.md``, "The obstacles in the near field")."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:

@@ -9,6 +9,7 @@ stage.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,15 +19,30 @@ from tqdm import tqdm
 from deck_sim.policies import ScriptedPolicy
 from deck_sim.scenes import load_scene
 from deck_sim.wrappers import DeckSimEnv
-from training.config import CurriculumStage, demo_episode_seed
+from training.config import CurriculumStage, TrainConfig, demo_episode_seed
 
 log = logging.getLogger(__name__)
 
 FAR = 1000.0
 """Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
-MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading", "dynamic_size")
+MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading", "dynamic_size", "dynamic_near")
 PAD = {"dynamic_heading": 0.0, "dynamic_size": 0.0}
-"""What fills the rows of movers a curriculum stage leaves out, where not ``FAR``."""
+"""What fills the rows of movers a curriculum stage leaves out, where not ``FAR`` (``mover_pad_fills`` adds the
+run's own)."""
+
+
+def mover_pad_fills(config: TrainConfig) -> dict[str, float]:
+    """The fills of a run's left-out movers that depend on its scene: 0 for ``predicted`` when it holds each
+    mover's own displacement (``episode.predicted_frame = "mover"``), and for ``dynamic_near`` the value whose
+    (x, y) row is as long as the near field (a mover beyond the field reads as a vector of the field's length, as
+    every far one does; ``FAR`` would break the clip and swamp the set's pooled statistics)."""
+    spec = load_scene(config.scene, **config.scene_overrides)
+    fills: dict[str, float] = {}
+    if spec.episode.predicted_frame == "mover":
+        fills["predicted"] = 0.0
+    if spec.episode.near_obstacles and spec.episode.near_steps > 0:
+        fills["dynamic_near"] = spec.episode.near_steps * spec.agent.reach / math.sqrt(2.0)
+    return fills
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,14 @@ from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
 from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
 from training.ddpg import DDPGAgent
-from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
+from training.envs import (
+    ObservationLayout,
+    collect_demonstrations,
+    env_layout,
+    make_env,
+    mover_pad_fills,
+    stage_overrides,
+)
 from training.noise import make_noise
 from training.runners import make_runner
 
@@ -215,6 +222,7 @@ class Trainer:
         self.last_stats: dict[str, float] = {}
         self.best_success = -1.0
         self.polished = False
+        self._pad_fills: dict[str, float] | None = None  # left-out movers' scene-dependent fills (at first use)
         """Whether the actor has had its final cloning fit (``polish_epochs``); it happens once per run."""
         self.demo_summary: dict[str, float] = {}
         self._eval_env: Any = None
@@ -274,8 +282,9 @@ class Trainer:
     def _obs(self, slot: _Slot, flat: np.ndarray) -> np.ndarray:
         if slot.layout.keys == self.layout.keys and slot.layout.shapes == self.layout.shapes:
             return flat
-        fills = {"predicted": 0.0} if self.config.scene_overrides.get("episode__predicted_frame") == "mover" else None
-        return slot.layout.pad_to(flat, self.layout, fills).astype(np.float32)
+        if self._pad_fills is None:
+            self._pad_fills = mover_pad_fills(self.config)
+        return slot.layout.pad_to(flat, self.layout, self._pad_fills).astype(np.float32)
 
     def _start_episode(self, slot: _Slot, stage: int | None = None) -> None:
         cfg = self.config

@@ -17,7 +17,8 @@ Observation (all relative vectors in the world frame, metres, or in the agent's 
     ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
     the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``),
-    the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``) and the
+    the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``; with
+    ``near_obstacles`` also every obstacle's nearest point clipped to it, ``static_near``, ``dynamic_near``) and the
     next points of the shortest way round the static obstacles (``route_steps``: ``route``).
 """
 
@@ -956,7 +957,7 @@ class Navigate(composer.Task):
             obs["target_near"] = to_target * (near / length) if length > near else to_target.copy()
             lo, hi = self._arena.bounds
             obs["edge_near"] = np.clip(np.concatenate([agent_xy - lo, hi - agent_xy])[[0, 2, 1, 3]], 0.0, near)
-            if static_nearest is not None and dynamic_nearest is not None:
+            if self.spec.episode.near_obstacles and static_nearest is not None and dynamic_nearest is not None:
                 obs["static_near"] = clip_length(static_nearest, near)
                 obs["dynamic_near"] = clip_length(dynamic_nearest, near)
         if self._route_steps > 0:
