@@ -40,7 +40,7 @@ def mover_pad_fills(config: TrainConfig) -> dict[str, float]:
     fills: dict[str, float] = {}
     if spec.episode.predicted_frame == "mover":
         fills["predicted"] = 0.0
-    if spec.episode.near_obstacles and spec.episode.near_steps > 0:
+    if spec.episode.near_obstacles:  # (the scene's validation ensures near_steps > 0)
         fills["dynamic_near"] = spec.episode.near_steps * spec.agent.reach / math.sqrt(2.0)
     return fills
 

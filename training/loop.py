@@ -222,8 +222,8 @@ class Trainer:
         self.last_stats: dict[str, float] = {}
         self.best_success = -1.0
         self.polished = False
-        self._pad_fills: dict[str, float] | None = None  # left-out movers' scene-dependent fills (at first use)
         """Whether the actor has had its final cloning fit (``polish_epochs``); it happens once per run."""
+        self._pad_fills: dict[str, float] | None = None  # left-out movers' scene-dependent fills (at first use)
         self.demo_summary: dict[str, float] = {}
         self._eval_env: Any = None
         self._tb: Any = None
