@@ -51,6 +51,25 @@ def clip_length(vectors: np.ndarray, max_length: float) -> np.ndarray:
     return v * scale[..., None]
 
 
+def end_circles(parts: np.ndarray, radius: float) -> np.ndarray:
+    """(k, 3) circles (x, y, radius; metres, in the body's own frame) at the ends of a body's parts that stick
+    out of the disc of ``radius`` round its origin.
+
+    ``parts`` (m, 5) are rounded boxes (centre x, y, half-length, half-width, rounding radius), as
+    ``entities.planar_parts`` gives them. Each part's two ends along its longer axis that lie outside the disc
+    become circles as wide as the part there (its shorter half-extent plus its rounding). For an aircraft whose
+    disc is half its wing span these are the nose and the tail: what a disc leaves out of a long fuselage. A
+    cover of the ends, not of every corner (a box's corners beside an end inside the disc may stick out by less
+    than its half-width)."""
+    rows = []
+    for cx, cy, hx, hy, r in np.asarray(parts, dtype=float).reshape(-1, 5):
+        along = np.array([hx, 0.0]) if hx >= hy else np.array([0.0, hy])
+        for end in (np.array([cx, cy]) + along, np.array([cx, cy]) - along):
+            if np.hypot(*end) > radius:
+                rows.append([end[0], end[1], min(hx, hy) + r])
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
 def agent_to_world(vectors: np.ndarray, yaw: float) -> np.ndarray:
     """The inverse of ``world_to_agent``: vectors (..., 2) in the agent's axes, in the world's."""
     return np.asarray(vectors, dtype=np.float64) @ rotation(np.float64(yaw)).T

@@ -8,10 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from deck_sim.geometry import Footprints
+
+if TYPE_CHECKING:
+    from deck_sim.control.tracking import AircraftLimits
 
 
 class ObstacleKind(IntEnum):
@@ -116,6 +120,12 @@ class PlannerView:
     """Metres per unit action."""
     period: float
     """Seconds per decision."""
+    agent_circles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(k, 3) circles (x forward, y left, radius; metres, in the agent's own frame) at the ends of the agent's
+    body that stick out of its disc: an aircraft's nose and tail (``geometry.end_circles``). Empty for a walker."""
+    agent_limits: AircraftLimits | None = None
+    """How the agent turns and speeds up when it is a wheeled aircraft (the tracker's limits); None for a walker,
+    which moves as it is asked."""
 
 
 @dataclass(frozen=True)

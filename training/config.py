@@ -149,6 +149,10 @@ class TrainConfig:
     """Label the agent's own transitions with the scripted planner's action in the same state (DAgger, Ross et al.
     2011, as an auxiliary cloning target): the planner is queried during training only; the actor still acts
     from the observation alone."""
+    teacher_body: bool = False
+    """Teach with the scripted planner that checks the agent's whole body on the way it will really go
+    (``ScriptedPlanner.body``: an aircraft's nose and tail, and its tracker's kinematics) in its demonstrations
+    and its labels; off: the planner that checks the agent's disc along its path."""
     demo_fraction: float = 0.25
     """Share of every batch drawn from the demonstrations (when there are any)."""
     bc_weight: float = 0.0
@@ -354,6 +358,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "route": {"scene_overrides": {"episode__route_steps": 10}},
     "sets": {"actor_arch": "sets"},
     "close": {"scene_overrides": {"episode__near_steps": 4, "episode__near_obstacles": True}},
+    "body": {"teacher_body": True},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -369,7 +374,8 @@ final fit, 40 epochs, trains a 512 x 512 x 512 actor, ``polish_hidden``; ``route
 of the shortest way round the static obstacles in the observation, ``episode.route_steps``; ``sets``: the actor
 reads the movers and the statics through one shared, max-pooled encoder per set, ``actor_arch = "sets"``;
 ``close``: the near field of ``near`` and, in it, every obstacle's nearest point at that scale,
-``episode.near_obstacles``). Several
+``episode.near_obstacles``; ``body``: the teacher checks the agent's whole body on the way it will really go,
+``teacher_body``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

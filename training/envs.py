@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from deck_sim.control.planners import ScriptedPlanner
 from deck_sim.policies import ScriptedPolicy
 from deck_sim.scenes import load_scene
 from deck_sim.wrappers import DeckSimEnv
@@ -176,6 +177,7 @@ def collect_demonstrations(
     layout: ObservationLayout,
     progress: bool = True,
     noise: float = 0.0,
+    body: bool = False,
     **overrides: Any,
 ) -> Demonstrations:
     """Play ``episodes`` episodes of the full-knowledge scripted planner and keep their transitions.
@@ -185,11 +187,12 @@ def collect_demonstrations(
     dropped, so DDPG and MDDPG learn from the same demonstrated episodes. Episode ``k`` is reset with
     ``demo_episode_seed(seed, k)`` (disjoint from training and evaluation seeds); ``overrides`` are scene fields.
     With ``noise`` > 0 the executed action is the planner's plus N(0, noise^2) per component (DART), drawn from a
-    generator seeded by ``seed``; the planner's own action is kept as the cloning target.
+    generator seeded by ``seed``; the planner's own action is kept as the cloning target. ``body`` is the
+    planner's ``ScriptedPlanner.body`` (``TrainConfig.teacher_body``).
     """
     env = make_env(scene, TEACHER_PREDICTOR, **overrides)
     full = env_layout(env)
-    policy = ScriptedPolicy(env.composer_env)
+    policy = ScriptedPolicy(env.composer_env, ScriptedPlanner(body=body))
     rows: dict[str, list[np.ndarray]] = {
         k: [] for k in ("obs", "action", "expert_action", "reward", "next_obs", "terminated")
     }

@@ -291,7 +291,9 @@ class Trainer:
         stage = self._stage_index() if stage is None else stage
         if slot.stage != stage:
             overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
-            slot.layout = self.envs.build(slot.index, cfg.scene, cfg.predictor, overrides, cfg.expert_relabel)
+            slot.layout = self.envs.build(
+                slot.index, cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body
+            )
             slot.stage = stage
         obs = self.envs.reset(slot.index, train_episode_seed(cfg.seed, slot.index, slot.episode))
         slot.obs = self._obs(slot, obs)
@@ -425,6 +427,7 @@ class Trainer:
                 self.layout,
                 self.progress,
                 noise=cfg.demo_noise,
+                body=cfg.teacher_body,
                 **cfg.scene_overrides,
             )
             self.buffer.add_demos(

@@ -1,11 +1,11 @@
 """Where a run's environments step: in the learner's process, or in one worker process beside it.
 
 Both runners hold the same environments (one Gymnasium adapter per slot, and the scripted planner when its
-actions label the agent's transitions) and answer the same calls. ``step_async`` starts a step of every
-environment and ``step_wait`` collects it; between the two the learner updates its networks. ``WorkerEnvs`` steps
-in a separate process, so the physics and the gradient updates overlap on two cores; ``InlineEnvs`` steps inside
-``step_async``. The trainer calls them in the same order either way, so a run gives the same numbers, bit for
-bit, on both.
+actions label the agent's transitions; ``body`` picks ``ScriptedPlanner.body``) and answer the same calls.
+``step_async`` starts a step of every environment and ``step_wait`` collects it; between the two the learner
+updates its networks. ``WorkerEnvs`` steps in a separate process, so the physics and the gradient updates
+overlap on two cores; ``InlineEnvs`` steps inside ``step_async``. The trainer calls them in the same order
+either way, so a run gives the same numbers, bit for bit, on both.
 """
 
 from __future__ import annotations
@@ -45,7 +45,10 @@ class _Envs:
         self.views: list[tuple[ObservationLayout, ObservationLayout] | None] = [None] * n
         """Per slot: (the environment's layout, the agent's) where the agent sees less than the environment."""
 
-    def build(self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool) -> dict:
+    def build(
+        self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool, body: bool = False
+    ) -> dict:
+        from deck_sim.control.planners import ScriptedPlanner
         from deck_sim.policies import ScriptedPolicy
 
         if self.envs[i] is not None:
@@ -53,7 +56,7 @@ class _Envs:
         # an agent without prediction is taught by the planner on the teacher's forecasts, and sees them dropped
         env_predictor = TEACHER_PREDICTOR if expert and predictor == "none" else predictor
         self.envs[i] = make_env(scene, env_predictor, **overrides)
-        self.experts[i] = ScriptedPolicy(self.envs[i].composer_env) if expert else None
+        self.experts[i] = ScriptedPolicy(self.envs[i].composer_env, ScriptedPlanner(body=body)) if expert else None
         full = env_layout(self.envs[i])
         own = full.without(("predicted",)) if env_predictor != predictor else full
         self.views[i] = (full, own) if own.keys != full.keys else None
@@ -99,8 +102,10 @@ class InlineEnvs:
         self._envs = _Envs(n)
         self._pending: list[StepResult] | None = None
 
-    def build(self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool) -> ObservationLayout:
-        return ObservationLayout(self._envs.build(i, scene, predictor, overrides, expert))
+    def build(
+        self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool, body: bool = False
+    ) -> ObservationLayout:
+        return ObservationLayout(self._envs.build(i, scene, predictor, overrides, expert, body))
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         return self._envs.reset(i, seed)
@@ -170,8 +175,10 @@ class WorkerEnvs:
             raise WorkerError(f"in the environment worker: {value}")
         return value
 
-    def build(self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool) -> ObservationLayout:
-        return ObservationLayout(self._call("build", i, scene, predictor, overrides, expert))
+    def build(
+        self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool, body: bool = False
+    ) -> ObservationLayout:
+        return ObservationLayout(self._call("build", i, scene, predictor, overrides, expert, body))
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         return self._call("reset", i, seed)

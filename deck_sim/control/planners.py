@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, points_along
+from deck_sim.control.tracking import rollout_displacements
+from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, agent_to_world, points_along
 from deck_sim.types import PlannerView
 
 
@@ -44,6 +45,12 @@ class ScriptedPlanner:
     """Metres kept beyond both discs from a mover predicted to stand still."""
     parked_range: float = 60.0
     """Metres: movers predicted to stand still closer than this are routed around like static obstacles."""
+    body: bool = False
+    """Check each candidate speed on the way the agent will really go and with its whole body: an aircraft's
+    rollout follows its tracker's kinematics (``control.tracking.rollout_displacements``: it turns on the move
+    and cannot pivot) and the circles at its nose and tail (``PlannerView.agent_circles``) must keep the margins
+    too. Off: the agent's disc along the path, as if it could move sideways (the planner the shipped policies
+    before session 18 were taught by). Nothing changes for a walker, whose disc is its body."""
 
     def __post_init__(self) -> None:
         self.reset()
@@ -118,11 +125,38 @@ class ScriptedPlanner:
         future = view.mover_future
         fp = view.movers
         parked = np.hypot(*(future[:, -1] - fp.centers).T) < 1.0
-        need = view.agent_radius + np.where(parked, self.parked_margin, self.mover_margin)  # (n,)
+        margin = np.where(parked, self.parked_margin, self.mover_margin)  # (n,)
+        headings = _headings(fp, future)
+        if self.body:
+            return self._body_clearance(view, ahead, margin, headings)
+        need = view.agent_radius + margin
         floor = np.minimum(fp.distance(view.agent_xy)[0] - need, 0.0) - 0.05
-        gap = _box_distance(ahead[None] - future, _headings(fp, future), fp.half, fp.radius) - need[:, None]
+        gap = _box_distance(ahead[None] - future, headings, fp.half, fp.radius) - need[:, None]
         now = fp.distance(ahead[0])[0] - need  # where they are during the first step
         return min(float((gap - floor[:, None]).min()), float((now - floor).min()))
+
+    def _body_clearance(self, view: PlannerView, ahead: np.ndarray, margin: np.ndarray, headings: np.ndarray) -> float:
+        """``_clearance`` for the agent's whole body (``body``): its disc and its end circles, on the rollout of
+        its own kinematics towards the points ``ahead`` (an aircraft) or on those points (a walker)."""
+        fp = view.movers
+        if view.agent_limits is not None:
+            pos, yaw = rollout_displacements(
+                view.agent_xy, view.agent_yaw, view.agent_speed, ahead, view.period, view.agent_limits
+            )
+        else:
+            pos, yaw = ahead, np.full(len(ahead), view.agent_yaw)
+        circles = np.concatenate([[[0.0, 0.0, view.agent_radius]], view.agent_circles])
+        worst = np.inf
+        for x, y, r in circles:
+            need = r + margin
+            # where the circle is now, and along the rollout (its offset turned with the agent's heading)
+            now_xy = view.agent_xy + agent_to_world(np.array([x, y]), view.agent_yaw)
+            p = pos + np.stack([x * np.cos(yaw) - y * np.sin(yaw), x * np.sin(yaw) + y * np.cos(yaw)], axis=1)
+            floor = np.minimum(fp.distance(now_xy)[0] - need, 0.0) - 0.05
+            gap = _box_distance(p[None] - view.mover_future, headings, fp.half, fp.radius) - need[:, None]
+            first = fp.distance(p[0])[0] - need  # where they are during the first step
+            worst = min(worst, float((gap - floor[:, None]).min()), float((first - floor).min()))
+        return worst
 
     def _safe_speed(self, view: PlannerView, path: np.ndarray) -> tuple[float, float]:
         """Fastest candidate speed whose rollout along ``path`` keeps clear of the movers, and its margin.

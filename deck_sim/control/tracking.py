@@ -114,6 +114,63 @@ def track_displacement(
     return speed_and_yaw_rate(v_des, err / limits.heading_time, speed, limits)
 
 
+def rollout_displacements(
+    xy: np.ndarray,
+    yaw: float,
+    speed: float,
+    targets: np.ndarray,
+    period: float,
+    limits: AircraftLimits,
+    substeps: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where an aircraft asked to reach ``targets`` (N, 2), one per decision period, would be: the kinematics
+    ``track_displacement`` asks for, as if the airframe obtained them.
+
+    Each period the tracker's command is computed once from the state at its start and held: the speed closes
+    on the asked speed with time constant ``limits.speed_time`` and the yaw rate is the bicycle model's at the
+    commanded nose-wheel angle. A planner uses it to check the path the aircraft will really take, which cuts
+    corners and cannot pivot, where the displacement it asks for would move sideways.
+
+    Args:
+        xy: (2,) position now, metres (world frame).
+        yaw: heading now, radians.
+        speed: forward speed now, m/s.
+        targets: (N, 2) where the aircraft is asked to be at the end of each of the next N periods, metres.
+        period: decision period, seconds.
+        substeps: Euler steps per period.
+
+    Returns:
+        (N, 2) positions and (N,) headings (radians) at the end of each period.
+    """
+    x, y, h, v = float(xy[0]), float(xy[1]), float(yaw), float(speed)
+    dt = period / substeps
+    gain = min(dt / limits.speed_time, 1.0)
+    pos = np.empty((len(targets), 2))
+    heading = np.empty(len(targets))
+    for k, (tx, ty) in enumerate(np.asarray(targets, dtype=float).tolist()):
+        dx, dy = tx - x, ty - y
+        dist = math.hypot(dx, dy)
+        if dist < 1e-3:
+            v_des, steer = 0.0, 0.0
+        else:
+            err = (math.atan2(dy, dx) - h + math.pi) % (2.0 * math.pi) - math.pi
+            v_des = dist / period
+            turning = min(v_des, limits.min_turn_speed)
+            v_des = max(v_des * math.cos(err), turning) if abs(err) < math.pi / 2 else turning
+            v_des = min(v_des, limits.max_speed)
+            yaw_rate = min(max(err / limits.heading_time, -limits.max_yaw_rate), limits.max_yaw_rate)
+            steer = steer_for_yaw_rate(yaw_rate, max(v, v_des), limits)
+        curvature = math.tan(steer) / limits.wheelbase
+        for _ in range(substeps):
+            v += (v_des - v) * gain
+            h += v * curvature * dt
+            x += v * math.cos(h) * dt
+            y += v * math.sin(h) * dt
+        pos[k] = (x, y)
+        heading[k] = h
+    return pos, heading
+
+
 def track_velocity(displacement: np.ndarray, period: float, max_speed: float) -> np.ndarray:
     """World-frame walking velocity (n, 2) m/s for a holonomic walker asked to move by ``displacement``."""
     vel = np.atleast_2d(displacement) / period

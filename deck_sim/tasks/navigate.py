@@ -45,7 +45,15 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, clip_length, points_along, world_to_agent
+from deck_sim.geometry import (
+    Footprints,
+    NoPathError,
+    VisibilityGraph,
+    clip_length,
+    end_circles,
+    points_along,
+    world_to_agent,
+)
 from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
@@ -123,9 +131,13 @@ class Navigate(composer.Task):
         if spec.agent.vehicle == "aircraft":
             self._agent: Aircraft | Pedestrian = Aircraft("agent")
             arena.add_free_entity(self._agent)
+            # the nose and tail stick out of the wing-span disc: the scripted planner may check them too
+            self._agent_circles = end_circles(self._agent.parts, spec.agent.radius)
         else:
             self._agent = Pedestrian("agent", rgba=(0.85, 0.15, 0.1, 1.0))
             arena.attach(self._agent)
+            self._agent_circles = np.zeros((0, 3))
+        self._aircraft_limits: AircraftLimits | None = None
 
         # static obstacles, joint-less
         self._statics: list[StaticProp] = []
@@ -1040,6 +1052,8 @@ class Navigate(composer.Task):
             bounds=self._arena.bounds,
             reach=self.spec.agent.reach,
             period=self.spec.episode.control_period,
+            agent_circles=self._agent_circles,
+            agent_limits=self._aircraft_limits,
         )
 
 
