@@ -527,7 +527,10 @@ def load_actor(path: str | os.PathLike[str]) -> LearnedPolicy | EnsemblePolicy:
 SHIPPED_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
 CLASSICAL = {"apf": APFPlanner, "astar": AStarPlanner, "mpc": MPCPlanner}
 """The classical references: planners on the task's ``planner_view`` that need no training."""
-POLICY_NAMES = ("scripted", *CLASSICAL, "random", "zero", *SHIPPED_ALGOS)
+SCRIPTED = {"scripted": False, "scripted-body": True}
+"""The full-knowledge scripted planner, by name: the value is its ``ScriptedPlanner.body`` (``scripted-body`` checks
+the aircraft's nose and tail on the way its tracker will really take it: the teacher of the ``body`` recipes)."""
+POLICY_NAMES = (*SCRIPTED, *CLASSICAL, "random", "zero", *SHIPPED_ALGOS)
 
 
 def shipped_policy_path(algo: str, scene: str) -> Path:
@@ -563,9 +566,10 @@ REFERENCE_PREDICTOR = "mpc"
 
 def policy_overrides(name: str, scene: str) -> dict[str, Any]:
     """The scene fields (``deck_sim.load`` keywords) policy ``name`` runs with on ``scene`` unless told otherwise:
-    the oracle for ``scripted``, ``REFERENCE_PREDICTOR`` for the classical references, a learned actor's own
-    predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and ``zero``."""
-    if name == "scripted":
+    the oracle for ``scripted`` and ``scripted-body``, ``REFERENCE_PREDICTOR`` for the classical references, a
+    learned actor's own predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and
+    ``zero``."""
+    if name in SCRIPTED:
         return {"episode__predictor": "oracle"}
     if name in CLASSICAL:
         return {"episode__predictor": REFERENCE_PREDICTOR}
@@ -574,11 +578,11 @@ def policy_overrides(name: str, scene: str) -> dict[str, Any]:
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``apf``, ``astar``, ``mpc``,
-    ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an actor file (a path
-    ending in ``.npz``); raises ``ValueError`` listing the known names."""
-    if name == "scripted":
-        return ScriptedPolicy(env)
+    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``scripted-body``, ``apf``,
+    ``astar``, ``mpc``, ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an
+    actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
+    if name in SCRIPTED:
+        return ScriptedPolicy(env, ScriptedPlanner(body=SCRIPTED[name]))
     if name in CLASSICAL:
         return ScriptedPolicy(env, CLASSICAL[name]())
     if name == "random":

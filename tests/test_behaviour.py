@@ -13,6 +13,7 @@ After a deliberate change of the behaviour, regenerate it with
 and say why in the commit message.
 """
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -187,6 +188,41 @@ def test_the_planner_passes_a_standing_vehicle_by_its_footprint_not_its_circumci
     # the same vehicle turned across the path reaches 9 m towards it: the straight line is not clear any more
     path = planner.path(_view(np.pi / 2, 15.0))
     assert len(path) > 2 or np.max(np.abs(path[:, 1] - 15.0)) > 1.0
+
+
+def test_the_body_planner_does_not_drive_the_nose_into_a_standing_tractor():
+    """An aircraft standing 3 m (disc to box) behind a parked tractor, asked to go to its left: the disc,
+    moved sideways along the path, stays clear, so the disc planner goes at full speed; the aircraft would really
+    roll its nose (8.2 m ahead of its centre) into the tractor as it turns, so the body planner waits."""
+    from deck_sim.control.tracking import AircraftLimits
+    from deck_sim.entities.aircraft import Aircraft
+    from deck_sim.geometry import end_circles
+
+    tractor = Footprints(np.array([[11.5, 0.0]]), np.array([[1.5, 1.0]]), np.array([np.pi]), np.zeros(1))
+    view = PlannerView(
+        agent_xy=np.zeros(2),
+        agent_yaw=0.0,
+        agent_speed=0.0,
+        agent_radius=7.0,
+        target_xy=np.array([0.0, 60.0]),
+        goal_radius=4.0,
+        statics=Footprints.empty(),
+        movers=tractor,
+        mover_future=np.tile(tractor.centers[:, None], (1, 10, 1)),  # it stands
+        bounds=BOUNDS,
+        reach=3.0,
+        period=0.5,
+        agent_circles=end_circles(Aircraft().parts, 7.0),
+        agent_limits=AircraftLimits(mass=14830.0),
+    )
+    disc = ScriptedPlanner().act(view)
+    body = ScriptedPlanner(body=True).act(view)
+    assert np.linalg.norm(disc) > 0.99
+    assert np.linalg.norm(body) < 0.3
+    # with the tractor 6 m further off, the nose has room to turn and the body planner goes too
+    moved = Footprints(np.array([[17.5, 0.0]]), tractor.half, tractor.yaw, tractor.radius)
+    far = dataclasses.replace(view, movers=moved, mover_future=np.tile(moved.centers[:, None], (1, 10, 1)))
+    assert np.linalg.norm(ScriptedPlanner(body=True).act(far)) > 0.99
 
 
 _GOLDEN_STATE = ("mode", "spot", "cruise", "dwell_until", "still_since", "yield_since", "yielding")

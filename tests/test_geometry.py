@@ -5,7 +5,15 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, clip_length, points_along, polyline_length
+from deck_sim.geometry import (
+    Footprints,
+    NoPathError,
+    VisibilityGraph,
+    clip_length,
+    end_circles,
+    points_along,
+    polyline_length,
+)
 
 coord = st.floats(-50, 50, allow_nan=False)
 size = st.floats(0.1, 10, allow_nan=False)
@@ -201,3 +209,31 @@ def test_clip_length_caps_each_vector_keeping_its_direction(vectors, max_length)
     np.testing.assert_allclose(cross, 0.0, atol=1e-9 * max(1.0, float(length.max())))  # ...along the same line
     assert np.all(np.einsum("ij,ij->i", v, out) >= 0.0)  # ...pointing the same way
     assert clip_length(v[None], max_length).shape == (1, *v.shape)  # any leading shape
+
+
+def test_end_circles_of_the_aircraft_are_its_nose_and_tail():
+    from deck_sim.entities.aircraft import Aircraft
+
+    circles = end_circles(Aircraft().parts, 7.0)  # the deck agent's disc: half the wing span
+    # the fuselage capsule's two ends (8.25 m half-length, 0.9 m thick) and the tail plane's tips
+    np.testing.assert_allclose(circles, [[8.2, 0.0, 0.9], [-8.3, 0.0, 0.9], [-7.4, 2.6, 1.2], [-7.4, -2.6, 1.2]])
+    assert end_circles(Aircraft().parts, 20.0).shape == (0, 3)  # a disc that holds the whole body needs none
+
+
+@given(
+    part=st.tuples(
+        st.floats(-5, 5), st.floats(-5, 5), st.floats(0, 8), st.floats(0, 8), st.floats(0, 2)
+    ),
+    radius=st.floats(0.5, 12),
+)
+def test_end_circles_cover_every_end_outside_the_disc(part, radius):
+    cx, cy, hx, hy, r = part
+    circles = end_circles(np.array([part]), radius)
+    along = np.array([hx, 0.0]) if hx >= hy else np.array([0.0, hy])
+    ends = [np.array([cx, cy]) + along, np.array([cx, cy]) - along]
+    outside = [e for e in ends if np.hypot(*e) > radius]
+    assert len(circles) == len(outside)
+    for e, c in zip(outside, circles, strict=True):
+        np.testing.assert_allclose(c[:2], e)
+        assert c[2] == pytest.approx(min(hx, hy) + r)  # as wide as the part
+        assert np.hypot(*c[:2]) > radius

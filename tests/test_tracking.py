@@ -7,7 +7,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from deck_sim.control.tracking import AircraftLimits, speed_and_yaw_rate, track_displacement, track_velocity
+from deck_sim.control.tracking import (
+    AircraftLimits,
+    rollout_displacements,
+    speed_and_yaw_rate,
+    track_displacement,
+    track_velocity,
+)
 
 LIMITS = AircraftLimits(mass=14830.0)
 
@@ -43,3 +49,33 @@ def test_walking_velocity_is_capped():
     v = track_velocity(np.array([[3.0, 4.0]]), period=0.5, max_speed=1.5)
     assert np.linalg.norm(v) == pytest.approx(1.5)
     np.testing.assert_allclose(v[0] / np.linalg.norm(v), [0.6, 0.8])
+
+
+def test_rollout_of_a_straight_request_follows_it():
+    targets = np.stack([3.0 * np.arange(1, 9), np.zeros(8)], axis=1)  # 6 m/s straight ahead
+    pos, yaw = rollout_displacements(np.zeros(2), 0.0, 6.0, targets, period=0.5, limits=LIMITS)
+    np.testing.assert_allclose(pos, targets, atol=1e-9)
+    np.testing.assert_allclose(yaw, 0.0, atol=1e-12)
+
+
+def test_rollout_of_a_sideways_request_rolls_forward_while_it_turns():
+    """An aircraft standing still and asked to move to its left cannot: it rolls ahead as it turns."""
+    targets = np.stack([np.zeros(6), 3.0 * np.arange(1, 7)], axis=1)
+    pos, yaw = rollout_displacements(np.zeros(2), 0.0, 0.0, targets, period=0.5, limits=LIMITS)
+    assert pos[0, 0] > 0.05 and pos[0, 1] < 0.5 * pos[0, 0] + 1e-9  # mostly forward in the first period
+    assert np.all(np.diff(yaw) >= 0.0) and 0.0 < yaw[-1] <= 6 * 0.5 * LIMITS.max_yaw_rate
+    assert np.max(pos[:, 0]) > 1.0  # the nose goes ahead, where a sideways step would not
+
+
+@given(
+    speed=st.floats(0.0, 6.0),
+    yaw=st.floats(-math.pi, math.pi),
+    steps=st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=1, max_size=8),
+)
+def test_rollout_stays_within_the_speed_and_yaw_rate_limits(speed, yaw, steps):
+    targets = np.cumsum(np.array(steps), axis=0)
+    pos, heading = rollout_displacements(np.zeros(2), yaw, speed, targets, period=0.5, limits=LIMITS)
+    travel = np.hypot(*np.diff(np.concatenate([np.zeros((1, 2)), pos]), axis=0).T)
+    assert np.all(travel <= max(speed, LIMITS.max_speed) * 0.5 + 1e-9)
+    turn = np.abs(np.diff(np.concatenate([[yaw], heading])))
+    assert np.all(turn <= LIMITS.max_yaw_rate * 0.5 + 1e-9)

@@ -542,6 +542,8 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     close = arm_config("tuned-mddpg-with-data+polish+near+sets+close", "square", steps=10_000, seed=0)
     assert close.scene_overrides == {"episode__near_steps": 4, "episode__near_obstacles": True}
     assert close.actor_arch == "sets"
+    assert arm_config("tuned-ddpg-with-data+body", "deck1", steps=10_000, seed=0).teacher_body
+    assert not arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).teacher_body
     from training.config import SHIPPED_RECIPES, shipped_arm
 
     for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm

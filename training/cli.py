@@ -561,7 +561,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="play episodes with a policy and report the metrics")
     p.add_argument("--scene", default="deck1", help="scene name or TOML path (default deck1)")
     p.add_argument("--policy", default="scripted",
-                   help="scripted (full knowledge), apf, astar, mpc (classical references), random, zero, a shipped "
+                   help="scripted (full knowledge; scripted-body: checking the aircraft's nose and tail), apf, astar, "
+                        "mpc (classical references), random, zero, a shipped "
                         "learned policy (mddpg, ddpg, dqn, a2c) "
                         "or an actor .npz file")
     p.add_argument("--episodes", type=int, default=20)
@@ -608,7 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval", help="task-suite evaluation: agents x scenes on held-out episodes, tables and logs")
     p.add_argument("--agents", default="mddpg,ddpg,apf,astar,mpc",
                    help="comma-separated: mddpg, ddpg, dqn, a2c (shipped), apf, astar, mpc (classical), scripted, "
-                        "random, zero, or label=actor.npz (default mddpg,ddpg,apf,astar,mpc)")
+                        "scripted-body, random, zero, or label=actor.npz (default mddpg,ddpg,apf,astar,mpc)")
     p.add_argument("--scenes", default="deck1,deck2,square", help="comma-separated scene names or TOML paths")
     p.add_argument("--episodes", type=int, default=100, help="episodes per scene and agent (default 100)")
     p.add_argument("--seed", type=int, default=100_000,

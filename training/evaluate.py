@@ -11,7 +11,8 @@ as they free up. Each unit that records writes its own MCAP log (``logs/``).
 Agents: the learned policies shipped in ``deck_sim/trained`` (``mddpg``, ``ddpg``, ``dqn``, ``a2c``), an actor file
 (``label=path.npz``), and the references that need no training: ``apf``, ``astar`` and ``mpc`` (classical
 planners, ``deck_sim.control.planners``; they plan around the MPC predictor's forecast, the same one MDDPG sees),
-``scripted`` (the full-knowledge planner with the movers' true future: the solvability ceiling), ``random`` and
+``scripted`` (the full-knowledge planner with the movers' true future: the solvability ceiling), ``scripted-body``
+(the same planner checking an aircraft's nose and tail on the way its tracker will really take it), ``random`` and
 ``zero``.
 
 ``write_report`` turns the results into ``summary.json``, ``episodes.csv``, ``summary.csv`` and ``results.md``
@@ -53,7 +54,7 @@ LEARNED_AGENTS = ("mddpg", "ddpg", "dqn", "a2c")
 CLASSICAL_AGENTS = ("apf", "astar", "mpc")
 """Classical references of ``deck_sim.control.planners``; they plan around the forecast of
 ``deck_sim.policies.REFERENCE_PREDICTOR``."""
-OTHER_AGENTS = ("scripted", "random", "zero")
+OTHER_AGENTS = ("scripted", "scripted-body", "random", "zero")
 AGENTS = LEARNED_AGENTS + CLASSICAL_AGENTS + OTHER_AGENTS
 DEFAULT_SEED = 100_000
 """Seed of episode 0 of an evaluation (episode i: DEFAULT_SEED + i)."""
