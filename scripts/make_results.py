@@ -47,7 +47,7 @@ from training.evaluate import (  # noqa: E402
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-AGENTS = "mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted"
+AGENTS = "mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted,scripted-body"
 RUN_FOLDERS = {
     "mddpg": "{scene}-{mddpg}-seed0",
     "ddpg": "{scene}-{ddpg}-seed0",
@@ -255,7 +255,9 @@ def main() -> None:
         "Agents: the four learned policies shipped in `deck_sim/trained/` (MDDPG, DDPG without prediction, DQN, "
         "A2C; trained by `scripts/train_shipped.py`), the classical references of `deck_sim/control/planners.py` "
         "(APF, A* with replanning, CasADi MPC; they plan around the MPC predictor's forecast, the one MDDPG sees) "
-        "and `scripted`, the full-knowledge planner that sees the movers' true future (the solvability ceiling).",
+        "and `scripted`, the full-knowledge planner that sees the movers' true future (the solvability ceiling); "
+        "`scripted-body` is the same planner checking the aircraft's nose and tail on the way its tracker will "
+        "really take it (the teacher of the `body` recipes; on the square, whose walker is a disc, it is `scripted`).",
         "",
         "## What stands behind each number",
         "",

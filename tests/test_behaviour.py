@@ -223,6 +223,10 @@ def test_the_body_planner_does_not_drive_the_nose_into_a_standing_tractor():
     moved = Footprints(np.array([[17.5, 0.0]]), tractor.half, tractor.yaw, tractor.radius)
     far = dataclasses.replace(view, movers=moved, mover_future=np.tile(moved.centers[:, None], (1, 10, 1)))
     assert np.linalg.norm(ScriptedPlanner(body=True).act(far)) > 0.99
+    # a walker (no limits, no end circles) is its disc: both planners act alike, to the bit
+    walker = dataclasses.replace(view, agent_circles=np.zeros((0, 3)), agent_limits=None)
+    for v in (walker, dataclasses.replace(walker, agent_xy=np.array([2.0, 1.0]))):
+        np.testing.assert_array_equal(ScriptedPlanner(body=True).act(v), ScriptedPlanner().act(v))
 
 
 _GOLDEN_STATE = ("mode", "spot", "cruise", "dwell_until", "still_since", "yield_since", "yielding")
