@@ -393,7 +393,7 @@ class ShippedArm(NamedTuple):
 
 
 SHIPPED_RECIPES: dict[str, ShippedArm] = {
-    "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets", 160_000, 20_000, 100, (0, 1)),
+    "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets+body", 160_000, 20_000, 100, (0, 1)),
     "deck2": ShippedArm("tuned-{algo}-with-data+polish+size+sets+close", 160_000, 20_000, 100, (0, 1)),
     "square": ShippedArm("tuned-{algo}-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)),
 }
