@@ -91,6 +91,24 @@ def speed_and_yaw_rate(
     return AircraftCommand(steer=steer, thrust=thrust, brake=brake)
 
 
+def displacement_request(
+    dx: float, dy: float, heading: float, period: float, limits: AircraftLimits
+) -> tuple[float, float]:
+    """The forward speed (m/s) and yaw rate (rad/s) the tracker asks of an aircraft that should move by (dx, dy)
+    metres (world frame) over ``period`` seconds from ``heading`` (radians), before the limits of
+    ``speed_and_yaw_rate``; (0, 0) for a request under a millimetre."""
+    dist = math.hypot(dx, dy)
+    if dist < 1e-3:
+        return 0.0, 0.0
+    err = (math.atan2(dy, dx) - heading + math.pi) % (2.0 * math.pi) - math.pi
+    v_des = dist / period
+    # slow down to turn, but keep rolling at up to ``min_turn_speed``: an aircraft turns on the move, it cannot
+    # pivot, and a slow creep at full nose-wheel lock ploughs the nose tyre instead of turning
+    turning = min(v_des, limits.min_turn_speed)
+    v_des = max(v_des * math.cos(err), turning) if abs(err) < math.pi / 2 else turning
+    return v_des, err / limits.heading_time
+
+
 def track_displacement(
     dx: float, dy: float, heading: float, speed: float, period: float, limits: AircraftLimits
 ) -> AircraftCommand:
@@ -102,16 +120,7 @@ def track_displacement(
         speed: current forward speed, m/s.
         period: decision period, seconds.
     """
-    dist = math.hypot(dx, dy)
-    if dist < 1e-3:
-        return speed_and_yaw_rate(0.0, 0.0, speed, limits)
-    err = (math.atan2(dy, dx) - heading + math.pi) % (2.0 * math.pi) - math.pi
-    v_des = dist / period
-    # slow down to turn, but keep rolling at up to ``min_turn_speed``: an aircraft turns on the move, it cannot
-    # pivot, and a slow creep at full nose-wheel lock ploughs the nose tyre instead of turning
-    turning = min(v_des, limits.min_turn_speed)
-    v_des = max(v_des * math.cos(err), turning) if abs(err) < math.pi / 2 else turning
-    return speed_and_yaw_rate(v_des, err / limits.heading_time, speed, limits)
+    return speed_and_yaw_rate(*displacement_request(dx, dy, heading, period, limits), speed, limits)
 
 
 def rollout_displacements(
@@ -126,7 +135,8 @@ def rollout_displacements(
     """Where an aircraft asked to reach ``targets`` (N, 2), one per decision period, would be: the kinematics
     ``track_displacement`` asks for, as if the airframe obtained them.
 
-    Each period the tracker's command is computed once from the state at its start and held: the speed closes
+    Each period the tracker's command (``displacement_request``, then ``speed_and_yaw_rate``) is computed once from
+    the state at its start and held: the speed closes
     on the asked speed with time constant ``limits.speed_time`` and the yaw rate is the bicycle model's at the
     commanded nose-wheel angle. A planner uses it to check the path the aircraft will really take, which cuts
     corners and cannot pivot, where the displacement it asks for would move sideways.
@@ -148,18 +158,9 @@ def rollout_displacements(
     pos = np.empty((len(targets), 2))
     heading = np.empty(len(targets))
     for k, (tx, ty) in enumerate(np.asarray(targets, dtype=float).tolist()):
-        dx, dy = tx - x, ty - y
-        dist = math.hypot(dx, dy)
-        if dist < 1e-3:
-            v_des, steer = 0.0, 0.0
-        else:
-            err = (math.atan2(dy, dx) - h + math.pi) % (2.0 * math.pi) - math.pi
-            v_des = dist / period
-            turning = min(v_des, limits.min_turn_speed)
-            v_des = max(v_des * math.cos(err), turning) if abs(err) < math.pi / 2 else turning
-            v_des = min(v_des, limits.max_speed)
-            yaw_rate = min(max(err / limits.heading_time, -limits.max_yaw_rate), limits.max_yaw_rate)
-            steer = steer_for_yaw_rate(yaw_rate, max(v, v_des), limits)
+        asked, yaw_rate = displacement_request(tx - x, ty - y, h, period, limits)
+        steer = speed_and_yaw_rate(asked, yaw_rate, v, limits).steer  # the nose-wheel angle the tracker holds
+        v_des = min(max(asked, 0.0), limits.max_speed)  # the speed it closes on, as ``speed_and_yaw_rate``
         curvature = math.tan(steer) / limits.wheelbase
         for _ in range(substeps):
             v += (v_des - v) * gain
