@@ -81,6 +81,29 @@ def test_episodes_are_seeded_per_index_and_below_training_seeds(serial):
         EvalConfig(agents=("apf",), scenes=("deck1",), seed=TRAIN_SEED_BASE - 1, episodes=2).validate()
 
 
+def test_an_episode_replays_alone_from_its_random_state():
+    """Nothing carries from one episode to the next (the physics, the movers, the MPC predictor's warm start, the
+    actors): an episode of a stream played again alone, from the random state it started from, ends the same. So an
+    episode reseeded by the evaluation and one met in a ``deck-sim run`` stream are draws of the same kind."""
+    import deck_sim
+    from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.rollout import run_episode
+
+    overrides = policy_overrides("mddpg", "deck1")
+    stream = deck_sim.load("deck1", seed=7, **overrides)
+    policy = make_policy("mddpg", stream)
+    states, results = [], []
+    for k in range(3):
+        states.append(stream.random_state.get_state())
+        results.append(run_episode(stream, policy, episode=k).as_dict())
+    alone = deck_sim.load("deck1", seed=0, **overrides)
+    fresh = make_policy("mddpg", alone)
+    for k in (2, 0):  # the last one first: a different episode before each
+        alone.random_state.set_state(states[k])
+        assert same_results([run_episode(alone, fresh, episode=k).as_dict()], [results[k]])
+    assert len({r["reward"] for r in results}) == 3  # three different episodes
+
+
 def test_summaries_follow_the_episodes(serial):
     for s in serial.summaries:
         mine = [r for r in serial.episodes if r["agent"] == s["agent"]]
