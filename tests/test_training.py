@@ -613,6 +613,52 @@ def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_
             make_config(polish_epochs=bad)
 
 
+def test_a_dagger_round_labels_the_fitted_actors_own_states_and_fits_again(tmp_path):
+    """``dagger_steps``: after the final fit the fitted actor drives more steps, greedy and without updates (the
+    critic and the normaliser stay as they are), every state labelled by the planner, then the fit is made again
+    on all of them and evaluated; asking for the round from the start or adding it to a fitted run by resuming
+    gives the same actor; a round is neither repeated nor undone."""
+    from training.config import arm_config
+
+    fitted = Trainer(_short(polish_epochs=5), tmp_path / "fitted", progress=False)
+    fitted.train()
+    size, critic = fitted.buffer.size, [p.detach().clone() for p in fitted.agent.critic.parameters()]
+    norm = fitted.agent.norm.state_dict()
+    later = Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "fitted", resume=True, progress=False)
+    later.train()
+    assert later.step == 160 and later.buffer.size == size + 40 and later.dagger_done == 40
+    rows = np.flatnonzero(later.buffer.labelled[: later.buffer.size] > 0)
+    assert len(rows) == later.buffer.size  # the round's states carry the planner's label too
+    # the round acted with the fitted actor's greedy action: stored actions are that actor's on the stored states
+    greedy = fitted.agent.act(later.buffer.obs[size : size + 40])
+    np.testing.assert_allclose(later.buffer.action[size : size + 40], np.clip(greedy, -1, 1), rtol=0, atol=1e-6)
+    for a, b in zip(critic, later.agent.critic.parameters(), strict=True):  # no updates
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    for k, v in norm.items():
+        torch.testing.assert_close(v, later.agent.norm.state_dict()[k], rtol=0, atol=0)
+    evals = _rows(tmp_path / "fitted" / "eval.csv")
+    assert [(r["step"], r["polished"]) for r in evals] == [("120", "0"), ("120", "1"), ("160", "1")]
+    meta = json.loads(str(np.load(tmp_path / "fitted" / "actor.npz", allow_pickle=False)["meta"]))
+    assert meta["polished"] is True and meta["trained_steps"] == 160 and meta["config"]["dagger_steps"] == 40
+    # from the start: the same actor and evaluations
+    whole = Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "whole", progress=False)
+    whole.train()
+    assert _rows(tmp_path / "whole" / "eval.csv") == evals
+    for k, v in _actor_arrays(tmp_path / "whole").items():
+        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "fitted")[k], err_msg=k)
+    again = Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "whole", resume=True, progress=False)
+    again.train()  # the round is done: resuming changes nothing
+    assert again.step == 160 and len(_rows(tmp_path / "whole" / "eval.csv")) == 3
+    with pytest.raises(CheckpointError, match="DAgger round of 40 steps"):
+        Trainer(_short(polish_epochs=5), tmp_path / "whole", resume=True, progress=False).train()
+    with pytest.raises(ConfigError, match="dagger_steps: needs the final fit"):
+        make_config(dagger_steps=40)
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ConfigError, match="dagger_steps"):
+            make_config(polish_epochs=5, dagger_steps=bad)
+    assert arm_config("tuned-mddpg-with-data+polish+dagger", "deck1", steps=10_000, seed=0).dagger_steps == 40_000
+
+
 def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_path):
     """``polish_hidden``: the final fit trains a fresh actor of other widths (the critic keeps ``hidden``); the
     exported file has those widths and acts; the polished run resumes with that actor; a finished run can be
@@ -654,7 +700,8 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
     Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0), out, progress=False).train()
     base = ["train", "--algo", "mddpg", "--out", str(out), "--resume", "--quiet"]
     assert main([*base, "--set", "gamma=0.5"]) == 2
-    assert "may change only total_steps, polish_epochs, polish_lr, polish_hidden, not gamma" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "may change only total_steps, polish_epochs, polish_lr, polish_hidden, dagger_steps, not gamma" in err
     assert main([*base, "--set", "polish_epochs=2"]) == 0
     assert load_checkpoint(out / "checkpoint.pt")["polished"] is True
 

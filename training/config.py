@@ -185,6 +185,14 @@ class TrainConfig:
     """Hidden layer widths of the actor the final cloning fit trains (empty: ``hidden``, the online actor's). A
     wider fit matches the planner's labels more closely (``benchmarks/cloning.py``); the exported actor then has
     these widths, and the critic keeps ``hidden``."""
+    dagger_steps: int = 0
+    """After the final cloning fit, a DAgger round (Ross et al. 2011) on the fitted actor's own states: the fitted
+    actor drives the training environments for this many environment steps, greedy (no noise) and without updates
+    (nor normaliser changes), the planner labels every state it meets, and then ``polish_epochs`` fit a fresh actor
+    again on every labelled transition, these included. 0: off. Needs ``polish_epochs`` and ``expert_relabel``. A
+    fitted run can be given the round later (``--resume --set dagger_steps=N``); a round stopped before its fit
+    is started again on resume. Keep the buffer large enough (``buffer_size``): the round's transitions overwrite
+    the oldest online ones once it is full."""
     pretrain_updates: int = 0
     """Updates on the demonstrations alone before any interaction (DQfD's pre-training phase): the critic learns
     their TD targets, the actor clones them (no Q term: a critic that has seen only demonstrations cannot yet
@@ -230,6 +238,12 @@ class TrainConfig:
             raise ConfigError(f"polish_epochs: must be an integer >= 0, got {self.polish_epochs!r}")
         if self.polish_epochs and not (self.expert_relabel or self.demo_episodes):
             raise ConfigError("polish_epochs: needs labelled transitions (expert_relabel or demo_episodes)")
+        if isinstance(self.dagger_steps, bool) or not isinstance(self.dagger_steps, int) or self.dagger_steps < 0:
+            raise ConfigError(f"dagger_steps: must be an integer >= 0, got {self.dagger_steps!r}")
+        if self.dagger_steps and not (self.polish_epochs and self.expert_relabel):
+            raise ConfigError(
+                "dagger_steps: needs the final fit (polish_epochs) and the planner's labels (expert_relabel)"
+            )
         if not self.bc_slow_weight > 0.0:
             raise ConfigError(f"bc_slow_weight: must be positive, got {self.bc_slow_weight!r}")
         if self.bc_weight_final is not None and not 0.0 <= self.bc_weight_final:
@@ -359,6 +373,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "sets": {"actor_arch": "sets"},
     "close": {"scene_overrides": {"episode__near_steps": 4, "episode__near_obstacles": True}},
     "body": {"teacher_body": True},
+    "dagger": {"dagger_steps": 40_000},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -375,7 +390,8 @@ of the shortest way round the static obstacles in the observation, ``episode.rou
 reads the movers and the statics through one shared, max-pooled encoder per set, ``actor_arch = "sets"``;
 ``close``: the near field of ``near`` and, in it, every obstacle's nearest point at that scale,
 ``episode.near_obstacles``; ``body``: the teacher checks the agent's whole body on the way it will really go,
-``teacher_body``). Several
+``teacher_body``; ``dagger``: after the final fit, the fitted actor drives 40,000 more steps, greedy and without
+updates, the planner labels them and the fit is made again, ``dagger_steps``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
 
 

@@ -102,7 +102,7 @@ def eval_row(step: int, wall: float, summary: dict[str, float], polished: bool =
     }
 
 
-RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden")
+RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden", "dagger_steps")
 """Config fields a resumed run may change: a longer run, or a final cloning fit added to a finished one."""
 
 
@@ -223,6 +223,8 @@ class Trainer:
         self.best_success = -1.0
         self.polished = False
         """Whether the actor has had its final cloning fit (``polish_epochs``); it happens once per run."""
+        self.dagger_done = 0
+        """Environment steps of the DAgger rounds (``dagger_steps``) whose fit is done."""
         self._pad_fills: dict[str, float] | None = None  # left-out movers' scene-dependent fills (at first use)
         self.demo_summary: dict[str, float] = {}
         self._eval_env: Any = None
@@ -257,6 +259,11 @@ class Trainer:
             raise CheckpointError(
                 f"{self.run_dir} was polished at step {self.step} (polish_epochs): it cannot be extended to {end} "
                 "steps; train a new run with more steps instead"
+            )
+        if self.dagger_done > self.config.dagger_steps:
+            raise CheckpointError(
+                f"{self.run_dir} had a DAgger round of {self.dagger_done} steps (dagger_steps); it cannot be "
+                f"undone to {self.config.dagger_steps}"
             )
         mine, saved, default = self.config.to_dict(), self._comparable(saved), TrainConfig().to_dict()
         for k in ("polish_epochs", "polish_lr", "polish_hidden"):
@@ -366,6 +373,11 @@ class Trainer:
                 last_eval = self.evaluate()
                 self.save_checkpoint()
                 owed = False
+            if not owed and self.dagger_done < cfg.dagger_steps and not self._stop:
+                # no checkpoint inside the round: one stopped before its fit starts again from the fitted run
+                round_eval = self._dagger_round()
+                owed = round_eval is None
+                last_eval = round_eval or last_eval
             if not owed:  # (a run stopped while its polish is owed is not finished: no actor.npz yet)
                 meta = _actor_meta(cfg, self.layout, self.agent, self.step, self.commit, self.polished)
                 save_actor(self.run_dir / "actor.npz", self.agent, meta)
@@ -378,6 +390,31 @@ class Trainer:
             "demonstrations": self.demo_summary,
             "stopped": self._stop,
         }
+
+    def _dagger_round(self) -> dict[str, Any] | None:
+        """Drive the fitted actor for the ``dagger_steps`` not yet done (greedy, no updates), every state labelled
+        by the planner, then fit again, evaluate and checkpoint. Returns the evaluation, or None if stopped first."""
+        cfg = self.config
+        steps = cfg.dagger_steps - self.dagger_done
+        log.info("DAgger round: the fitted actor drives %d steps, labelled by the planner", steps)
+        end = self.step + steps
+        previous = signal.signal(signal.SIGINT, self._on_sigint) if _main_thread() else None
+        try:
+            with tqdm(total=steps, desc="DAgger round", unit="step", disable=not self.progress, leave=False) as bar:
+                while self.step < end and not self._stop:
+                    self._collect(explore=False)
+                    self._tick()
+                    bar.update(cfg.num_envs)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+        if self.step < end:
+            return None
+        self._polish()
+        self.dagger_done = cfg.dagger_steps
+        summary = self.evaluate()
+        self.save_checkpoint()
+        return summary
 
     def _polish(self) -> None:
         """The final cloning fit on every labelled transition of the buffer (``polish_epochs``)."""
@@ -452,20 +489,25 @@ class Trainer:
         for slot in self.slots:
             self._start_episode(slot)
 
-    def _collect(self) -> None:
+    def _collect(self, explore: bool = True) -> None:
         """One step of every environment; the learner's updates run while the environments step.
 
         Order (the same for both runners, so that they give the same numbers): act on the current observations,
         start the step, update from the replay buffer as it stands, then store the step's transitions.
+        ``explore=False`` (a DAgger round): the greedy actor acts, and neither the networks, the normaliser nor
+        the noise and cloning schedules change.
         """
         cfg = self.config
         obs = np.stack([s.obs for s in self.slots])
-        if self.step < cfg.learning_starts and not self.buffer.n_demo:
+        if not explore:
+            actions = np.clip(self.agent.act(obs), -1.0, 1.0)
+        elif self.step < cfg.learning_starts and not self.buffer.n_demo:
             actions = self.rng.uniform(-1.0, 1.0, (cfg.num_envs, 2))
         else:
             actions = np.clip(self.agent.act(obs) + self.noise.sample(self.rng), -1.0, 1.0)
         self.envs.step_async(actions)
-        self._learn(self.step + cfg.num_envs)
+        if explore:
+            self._learn(self.step + cfg.num_envs)
         results = self.envs.step_wait()
         rows: dict[str, list[Any]] = {k: [] for k in ("obs", "action", "reward", "next_obs", "terminated", "expert")}
         for slot, action, res in zip(self.slots, actions, results, strict=True):
@@ -487,10 +529,13 @@ class Trainer:
             else:
                 slot.obs = next_obs
         batch = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items() if k != "expert"}
-        self.agent.norm.update(batch["obs"])
+        if explore:
+            self.agent.norm.update(batch["obs"])
         expert = np.asarray(rows["expert"], dtype=np.float32) if cfg.expert_relabel else None
         self.buffer.add(batch["obs"], batch["action"], batch["reward"], batch["next_obs"], batch["terminated"], expert)
         self.step += cfg.num_envs
+        if not explore:
+            return
         frac = min(1.0, self.step / max(1.0, cfg.noise_decay * cfg.total_steps))
         self.noise.sigma = cfg.noise_sigma + frac * (cfg.noise_sigma_final - cfg.noise_sigma)
         self.agent.bc_weight = bc_weight_at(cfg, self.step)
@@ -601,6 +646,7 @@ class Trainer:
             "last_stats": dict(self.last_stats),
             "best_success": self.best_success,
             "polished": self.polished,
+            "dagger_done": self.dagger_done,
             "demo_summary": dict(self.demo_summary),
             "agent": self.agent.state_dict(),
             "buffer": self.buffer.state_dict(),
@@ -643,6 +689,7 @@ class Trainer:
         self.last_stats = dict(state["last_stats"])
         self.best_success = float(state["best_success"])
         self.polished = bool(state.get("polished", False))  # (checkpoints from before the switch: not polished)
+        self.dagger_done = int(state.get("dagger_done", 0))
         self.demo_summary = dict(state["demo_summary"])
         self.rng.bit_generator.state = state["rng"]
         for slot, saved in zip(self.slots, state["slots"], strict=True):
