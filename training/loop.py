@@ -103,7 +103,8 @@ def eval_row(step: int, wall: float, summary: dict[str, float], polished: bool =
 
 
 RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden", "dagger_steps")
-"""Config fields a resumed run may change: a longer run, or a final cloning fit added to a finished one."""
+"""Config fields a resumed run may change: a longer run, or a final cloning fit or a DAgger round added to a
+finished one."""
 
 
 class CheckpointError(RuntimeError):
