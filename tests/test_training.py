@@ -646,6 +646,24 @@ def test_a_dagger_round_labels_the_fitted_actors_own_states_and_fits_again(tmp_p
     assert _rows(tmp_path / "whole" / "eval.csv") == evals
     for k, v in _actor_arrays(tmp_path / "whole").items():
         np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "fitted")[k], err_msg=k)
+    # stopped halfway through the round (it starts at step 120): no actor, the fitted checkpoint stays; resumed,
+    # the round starts again from there and ends as the uninterrupted run
+    stopped = Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "stopped", progress=False)
+    tick = stopped._tick
+
+    def tick_then_stop() -> None:
+        tick()
+        stopped._stop = stopped._stop or stopped.step >= 140
+
+    stopped._tick = tick_then_stop
+    stopped.train()
+    assert not (tmp_path / "stopped" / "actor.npz").exists()
+    saved = load_checkpoint(tmp_path / "stopped" / "checkpoint.pt")
+    assert (saved["step"], saved["polished"], saved["dagger_done"]) == (120, True, 0)
+    Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "stopped", resume=True, progress=False).train()
+    assert _rows(tmp_path / "stopped" / "eval.csv") == evals
+    for k, v in _actor_arrays(tmp_path / "whole").items():
+        np.testing.assert_array_equal(v, _actor_arrays(tmp_path / "stopped")[k], err_msg=k)
     again = Trainer(_short(polish_epochs=5, dagger_steps=40), tmp_path / "whole", resume=True, progress=False)
     again.train()  # the round is done: resuming changes nothing
     assert again.step == 160 and len(_rows(tmp_path / "whole" / "eval.csv")) == 3

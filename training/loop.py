@@ -18,6 +18,7 @@ checks that it arrives at the checkpointed observation, and goes on; the CSV log
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -25,6 +26,7 @@ import os
 import signal
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -333,11 +335,10 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
 
         self._tb = SummaryWriter(str(self.run_dir / "tb"), purge_step=self.step or None)
-        previous = signal.signal(signal.SIGINT, self._on_sigint) if _main_thread() else None
         bar = tqdm(total=end, initial=self.step, desc=f"{cfg.algo} {cfg.scene}", unit="step", disable=not self.progress)
         t_log, step_log = time.perf_counter(), self.step
         last_eval: dict[str, Any] = {}
-        try:
+        with self._stop_on_sigint(), bar:
             while self.step < end and not self._stop:
                 self._collect()
                 self._tick()
@@ -358,10 +359,6 @@ class Trainer:
                     )
                 if cfg.checkpoint_every and self._crossed(cfg.checkpoint_every):
                     self.save_checkpoint()
-        finally:
-            bar.close()
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
         self.save_checkpoint()
         if self.step >= cfg.total_steps:
             if self._last_eval_step != self.step:
@@ -399,17 +396,14 @@ class Trainer:
         steps = cfg.dagger_steps - self.dagger_done
         log.info("DAgger round: the fitted actor drives %d steps, labelled by the planner", steps)
         end = self.step + steps
-        previous = signal.signal(signal.SIGINT, self._on_sigint) if _main_thread() else None
-        try:
-            with tqdm(total=steps, desc="DAgger round", unit="step", disable=not self.progress, leave=False) as bar:
-                while self.step < end and not self._stop:
-                    self._collect(explore=False)
-                    self._tick()
-                    bar.update(cfg.num_envs)
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
+        bar = tqdm(total=steps, desc="DAgger round", unit="step", disable=not self.progress, leave=False)
+        with self._stop_on_sigint(), bar:
+            while self.step < end and not self._stop:
+                self._collect(explore=False)
+                self._tick()
+                bar.update(cfg.num_envs)
         if self.step < end:
+            log.warning("the DAgger round stopped before its fit: --resume starts it again from the fitted run")
             return None
         self._polish()
         self.dagger_done = cfg.dagger_steps
@@ -445,6 +439,17 @@ class Trainer:
 
     def _tick(self) -> None:
         self.wall = time.perf_counter() - self._t_start
+
+    @contextlib.contextmanager
+    def _stop_on_sigint(self) -> Iterator[None]:
+        """Inside: Ctrl-C sets ``_stop``, checked at every step boundary (in the main thread; elsewhere signals
+        are not ours to take); the previous handler is back afterwards."""
+        previous = signal.signal(signal.SIGINT, self._on_sigint) if _main_thread() else None
+        try:
+            yield
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
 
     def _on_sigint(self, signum: int, frame: Any) -> None:  # noqa: ARG002
         log.warning("interrupted: stopping at the next step with a checkpoint (resume with --resume)")
