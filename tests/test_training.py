@@ -550,11 +550,11 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
         arm = shipped_arm(scene, "ddpg")
         assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
     assert shipped_arm("deck1", "mddpg")[:4] == (
-        "tuned-mddpg-with-data+polish+size+sets+body", 160_000, 20_000, 100
+        "tuned-mddpg-with-data+polish+size+sets+body+dagger", 160_000, 20_000, 100
     )
     deck1 = arm_config(shipped_arm("deck1", "ddpg").recipe, "deck1", 160_000, 0)
     assert (deck1.actor_arch, deck1.polish_epochs, deck1.scene_overrides) == ("sets", 20, {"episode__mover_size": True})
-    assert deck1.teacher_body
+    assert deck1.teacher_body and deck1.dagger_steps == 40_000
     assert shipped_arm("deck2", "ddpg")[:2] == ("tuned-ddpg-with-data+polish+size+sets+close", 160_000)
     for deck in ("deck1", "deck2", "square"):  # two seeds' actors averaged, MDDPG and DDPG alike
         assert shipped_arm(deck, "ddpg").seeds == shipped_arm(deck, "mddpg").seeds == (0, 1)
