@@ -2,7 +2,7 @@
 
     python benchmarks/eval_speed.py [--episodes 100] [--workers 2] [--scene deck2] [--agent mddpg] [--ray]
 
-Both runs play the same seeded episodes (``training.evaluate``, no logs); the script checks that their results are
+Both runs play the same seeded episodes (``deck_sim.evaluation``, no logs); the script checks that their results are
 identical, then prints the wall time of each, the speed-up and the parallel efficiency (serial time / (workers x
 parallel time)). Every run starts cold: the pool's time includes building the environment and policy (once, in the
 parent, which the forked workers inherit) and starting its workers. Targets (issue 6):
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mujoco  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.evaluate import EvalConfig, clear_worker_cache, evaluate, same_results  # noqa: E402
+from deck_sim.evaluation import EvalConfig, clear_worker_cache, evaluate, same_results  # noqa: E402
 
 
 def main() -> None:

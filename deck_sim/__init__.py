@@ -1,8 +1,8 @@
 """deck_sim: path planning among moving obstacles on a carrier flight deck, on MuJoCo physics.
 
 Public surface: ``load(name, seed=..., **overrides)`` returns a dm_control composer environment; ``TASKS`` lists
-the scenes; the Gymnasium environments ``deck_sim/Deck1-v0``, ``deck_sim/Deck2-v0`` and ``deck_sim/Square-v0`` are
-registered on import of ``deck_sim.wrappers``.
+the scenes; importing ``deck_sim`` registers the Gymnasium environments ``deck_sim/Deck1-v0``, ``deck_sim/Deck2-v0``
+and ``deck_sim/Square-v0`` (``gymnasium.make`` builds them on demand).
 
 The names are resolved lazily, so that ``deck_sim.control`` (numpy and CasADi only) imports without MuJoCo.
 """
@@ -37,3 +37,12 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
+
+
+def _register() -> None:
+    from deck_sim.registration import register_envs
+
+    register_envs()
+
+
+_register()

@@ -76,6 +76,11 @@ class DeckEnvironment(composer.Environment):
         mujoco.mj_step(self._physics.model.ptr, self._physics.data.ptr)
         self._hooks.after_substep(self._physics_proxy, self._random_state)
 
+    def close(self) -> None:
+        """Release the physics; closing a closed environment does nothing."""
+        if self._physics is not None:
+            super().close()
+
     def _make_observation_updater(self) -> observation.Updater:
         if self._delayed_observation_padding == composer.ObservationPadding.INITIAL_VALUE:
             return super()._make_observation_updater()

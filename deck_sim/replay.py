@@ -8,11 +8,11 @@ obstacles and the target their logged places; wheels and steering stay as the re
 from __future__ import annotations
 
 import os
+import tomllib
 from pathlib import Path
 
 import mujoco
 import numpy as np
-import tomllib
 from dm_control import composer, mjcf
 from dm_control.mujoco.engine import TextOverlay
 

@@ -1,8 +1,8 @@
 """Gymnasium adapter over the composer task: flat float32 observations and a Box action.
 
-Importing this module registers ``deck_sim/Deck1-v0``, ``deck_sim/Deck2-v0`` and ``deck_sim/Square-v0`` (and
-Gymnasium's plugin entry point does so on ``import gymnasium``). Episodes end by termination (goal, collision,
-leaving the surface, divergence: discount 0) or truncation (the scene's time limit).
+``import deck_sim`` registers ``deck_sim/Deck1-v0``, ``deck_sim/Deck2-v0`` and ``deck_sim/Square-v0``
+(``deck_sim.registration``), so ``gymnasium.make`` builds this environment. Episodes end by termination (goal,
+collision, leaving the surface, divergence: discount 0) or truncation (the scene's time limit).
 """
 
 from __future__ import annotations
@@ -14,8 +14,7 @@ import numpy as np
 from gymnasium import spaces
 
 from deck_sim.environment import load
-
-GYM_IDS = {"deck1": "deck_sim/Deck1-v0", "deck2": "deck_sim/Deck2-v0", "square": "deck_sim/Square-v0"}
+from deck_sim.registration import GYM_IDS, register_envs
 
 
 class DeckSimEnv(gymnasium.Env):
@@ -95,11 +94,4 @@ class DeckSimEnv(gymnasium.Env):
         self._env.close()
 
 
-def register_envs() -> None:
-    """Register the Gymnasium ids of every shipped scene (idempotent)."""
-    for scene, gym_id in GYM_IDS.items():
-        if gym_id not in gymnasium.registry:
-            gymnasium.register(id=gym_id, entry_point="deck_sim.wrappers:DeckSimEnv", kwargs={"scene": scene})
-
-
-register_envs()
+__all__ = ["GYM_IDS", "DeckSimEnv", "register_envs"]

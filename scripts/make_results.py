@@ -2,7 +2,7 @@
 
     python scripts/make_results.py [--episodes 100] [--workers 2] [--agents ...] [--scenes ...] [--out runs/results]
 
-Runs ``training.evaluate`` (the engine of ``deck-sim eval``) on held-out episodes seeded 100000 + i, writes its
+Runs ``deck_sim.evaluation`` (the engine of ``deck-sim eval``) on held-out episodes seeded 100000 + i, writes its
 full report (JSON, CSV, Markdown, MCAP logs of the first two episodes of every scene and agent) to ``--out``, and
 then ``docs/results.md`` with: the command and commit it came from, the machine, how many training seeds and
 episodes stand behind each number (training figures from ``deck_sim/trained/results.json``), the tables, the
@@ -30,11 +30,8 @@ from pathlib import Path  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
-from deck_sim.policies import TRAINED_DIR, shipped_log_dir  # noqa: E402
-from deck_sim.rollout import git_commit  # noqa: E402
-from training.config import shipped_arm  # noqa: E402
-from training.evaluate import (  # noqa: E402
-    LEARNED_AGENTS,
+from deck_sim.agents import LEARNED  # noqa: E402
+from deck_sim.evaluation import (  # noqa: E402
     EvalConfig,
     EvalResults,
     evaluate,
@@ -45,6 +42,9 @@ from training.evaluate import (  # noqa: E402
     summarize_agent,
     write_report,
 )
+from deck_sim.policies import TRAINED_DIR, shipped_log_dir  # noqa: E402
+from deck_sim.rollout import git_commit  # noqa: E402
+from training.config import shipped_arm  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = "mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted,scripted-body"
@@ -74,7 +74,7 @@ def fingerprint(cfg: EvalConfig) -> str:
     files = sorted((ROOT / "deck_sim").rglob("*.py")) + sorted((ROOT / "training").rglob("*.py"))
     files += sorted((ROOT / "deck_sim" / "scenes").glob("*.toml"))
     files += sorted((ROOT / "deck_sim" / "assets").glob("*.xml"))
-    files += [TRAINED_DIR / f"{s}_{a}.npz" for s in cfg.scenes for a in cfg.agents if a in LEARNED_AGENTS]
+    files += [TRAINED_DIR / f"{s}_{a}.npz" for s in cfg.scenes for a in cfg.agents if a in LEARNED]
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode())
         digest.update(f.read_bytes())
@@ -110,7 +110,7 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
         for agent in agents:
             if agent in missing[scene]:
                 lines.append(f"| {agent} | {scene} | no policy shipped yet: not evaluated (n/a) | - | - | 0 |")
-            elif agent in LEARNED_AGENTS:
+            elif agent in LEARNED:
                 fig = training_figures(scene, agent) or {}
                 steps = f"{fig['train_steps']:,}" if "train_steps" in fig else "?"
                 wall = f"{fig['train_wall_s'] / 60:.0f} min" if "train_wall_s" in fig else "?"
@@ -166,7 +166,7 @@ def main() -> None:
     missing = {}  # scene -> learned agents with no shipped policy for it (reported, not evaluated)
     plan = {}
     for scene in scenes:
-        missing[scene] = [a for a in agents if a in LEARNED_AGENTS and not (TRAINED_DIR / f"{scene}_{a}.npz").exists()]
+        missing[scene] = [a for a in agents if a in LEARNED and not (TRAINED_DIR / f"{scene}_{a}.npz").exists()]
         plan[scene] = tuple(a for a in agents if a not in missing[scene])
     commit = git_commit()
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())

@@ -67,8 +67,8 @@ def test_the_numpy_export_acts_as_sb3_predicts(runs, algo):
 
 @pytest.mark.parametrize("algo", ["dqn", "a2c"])
 def test_make_policy_and_deck_sim_run_load_the_shipped_name(runs, algo, tmp_path, monkeypatch, capsys):
-    import deck_sim.policies as policies
-    from training.cli import main
+    import deck_sim.policies.registry as policies
+    from deck_sim.cli import main
 
     monkeypatch.setattr(policies, "TRAINED_DIR", tmp_path)
     with pytest.raises(PolicyFileError, match=f"no shipped {algo} policy for scene 'deck1'"):

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from training.cli import main
+from deck_sim.cli import main
 
 
 def test_scenes_lists_every_scene(capsys):
@@ -90,7 +90,7 @@ def test_render_writes_a_video_and_a_png(tmp_path):
         [
             sys.executable,
             "-m",
-            "training.cli",
+            "deck_sim.cli",
             "render",
             "--scene",
             "deck1",
@@ -117,3 +117,44 @@ def test_render_writes_a_video_and_a_png(tmp_path):
     assert frames.shape[0] == 4 and frames.shape[1:] == (120, 160, 3)
     png = iio.imread(video.with_suffix(".png"))
     assert png.shape[0] == 120 and png.shape[1] > 3 * 120  # the deck is long
+
+
+def test_version_and_every_subcommand_help_opens_with_what_it_does(capsys):
+    from deck_sim import __version__
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.strip() == f"deck-sim {__version__}"
+    for command in (["scenes"], ["run"], ["render"], ["eval"], ["log", "info"], ["log", "recover"], ["train"],
+                    ["ensemble"]):
+        with pytest.raises(SystemExit):
+            main([*command, "--help"])
+        text = capsys.readouterr().out
+        first = text.split("\n\n")[1]  # after the usage block: the description
+        assert first[0].isupper() and first.rstrip().endswith("."), (command, first)
+        if command == ["run"]:
+            assert "(default: deck1)" in text and "(default: 20)" in text
+
+
+def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path):
+    err = tmp_path / "stderr.txt"
+    with open(err, "w") as f:
+        proc = subprocess.run(
+            [sys.executable, "-m", "deck_sim.cli", "run", "--scene", "deck1", "--policy", "zero", "--episodes", "2",
+             "--predictor", "none", "--no-record", "--out", str(tmp_path / "run")],
+            stdout=subprocess.PIPE, stderr=f, text=True, timeout=300, env={**os.environ, "MUJOCO_GL": "disable"},
+        )
+    assert proc.returncode == 0, err.read_text()
+    text = err.read_text()
+    assert "\r" not in text
+    assert "deck1 zero: 2/2 ep (100 %)" in text  # the final line
+
+
+def test_an_unreachable_ray_address_fails_fast_and_clearly(capsys):
+    import time
+
+    t0 = time.monotonic()
+    code = main(["eval", "--agents", "zero", "--scenes", "deck1", "--episodes", "1", "--backend", "ray",
+                 "--ray-address", "127.0.0.1:9", "--quiet", "--record", "none"])
+    assert code == 2 and time.monotonic() - t0 < 30
+    assert "no Ray cluster answers there" in capsys.readouterr().err

@@ -12,6 +12,7 @@ import pytest
 from conftest import run_steps
 
 import deck_sim
+from deck_sim.cli import main as cli
 from deck_sim.policies import (
     ENSEMBLE_FORMAT,
     EnsemblePolicy,
@@ -22,7 +23,6 @@ from deck_sim.policies import (
     shipped_policy_path,
 )
 from deck_sim.rollout import run_episode
-from training.cli import main as cli
 
 
 def _actor(algo: str = "ddpg", scene: str = "deck1") -> LearnedPolicy:

@@ -5,9 +5,9 @@ import json
 
 import pytest
 
+from deck_sim.cli import main
+from deck_sim.evaluation import EvalConfig, EvalError, evaluate, same_results, write_report
 from deck_sim.scenes import SceneSpecError
-from training.cli import main
-from training.evaluate import EvalConfig, EvalError, evaluate, same_results, write_report
 
 SMALL = dict(agents=("mddpg", "apf"), scenes=("deck1",), episodes=3, chunk=2, workers=2, record="none")
 

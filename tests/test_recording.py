@@ -8,22 +8,22 @@ import signal
 import subprocess
 import sys
 import textwrap
+import tomllib
 
 import mujoco
 import numpy as np
 import pytest
-import tomllib
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
 import deck_sim
+from deck_sim.cli import main
 from deck_sim.metrics import prediction_errors
 from deck_sim.policies import make_policy
 from deck_sim.recording import EpisodeLog, EpisodeRecorder, LogError, RecordingError, TruncatedLogError, recover
 from deck_sim.recording.schema import TOPICS
 from deck_sim.rollout import open_recorder, run_attachments, run_episode, run_metadata, task_frames
 from deck_sim.scenes import parse_scene
-from training.cli import main
 
 SEED = 2
 LIMIT = 30.0  # s: with seed 2 the episodes end in a goal, a collision and a timeout
@@ -450,7 +450,7 @@ def test_log_video_renders_the_logged_states(recorded, tmp_path):
     path, _, _, _ = recorded
     video = tmp_path / "ep.mp4"
     env = {**os.environ, "MUJOCO_GL": "egl"}
-    cmd = [sys.executable, "-m", "training.cli", "log", "video", str(path), "--episode", "0"]
+    cmd = [sys.executable, "-m", "deck_sim.cli", "log", "video", str(path), "--episode", "0"]
     cmd += ["--out", str(video), "--max-steps", "2", "--width", "160"]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr

@@ -95,7 +95,7 @@ def test_every_reference_reaches_deck1_targets_among_movers(name, planner):
 
 
 def test_cli_runs_a_classical_reference_with_the_mpc_predictor(tmp_path, capsys):
-    from training.cli import main
+    from deck_sim.cli import main
 
     rc = main(["run", "--scene", "deck1", "--policy", "apf", "--episodes", "1", "--seed", "3", "--no-record",
                "--out", str(tmp_path), "--quiet"])  # fmt: skip

@@ -292,7 +292,7 @@ def test_a_short_run_on_an_empty_deck_beats_random(tmp_path):
 
 
 def test_cli_trains_resumes_and_runs_the_exported_actor(tmp_path, capsys):
-    from training.cli import main
+    from deck_sim.cli import main
 
     out = tmp_path / "cli"
     args = [
@@ -358,7 +358,7 @@ def test_cli_trains_resumes_and_runs_the_exported_actor(tmp_path, capsys):
 def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
     import deck_sim
     from deck_sim.policies import LearnedPolicy, PolicyFileError
-    from training.cli import main
+    from deck_sim.cli import main
 
     run = tmp_path / "run"
     Trainer(
@@ -712,7 +712,7 @@ def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_pa
 
 
 def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
-    from training.cli import main
+    from deck_sim.cli import main
 
     out = tmp_path / "run"
     Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0), out, progress=False).train()

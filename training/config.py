@@ -20,8 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-TRAIN_SEED_BASE = 1_000_000
-ALGOS = ("mddpg", "ddpg")
+from deck_sim import agents
+from deck_sim.evaluation import TRAIN_SEED_BASE
+
+ALGOS = agents.names(trainer="ddpg")
+"""The agents ``training.ddpg`` trains (``deck_sim.agents``); the others go through ``training.baselines``."""
 NOISES = ("gaussian", "ou")
 ACTOR_ARCHS = ("mlp", "sets")
 

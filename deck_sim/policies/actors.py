@@ -1,15 +1,9 @@
-"""Policies with the ``act(observation) -> action`` interface: references that need no training, and learned ones.
+"""Learned policies from weights-only ``.npz`` actor files, run with numpy alone.
 
-``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (it plans around the
-observation's predicted mover positions: the ``oracle`` predictor shows it the movers' true future, ``mpc`` the
-MPC forecast); ``apf``, ``astar`` and ``mpc`` are the classical references of ``deck_sim.control.planners`` on
-the same view (the evaluation runs them with the MPC predictor); ``random`` and ``zero`` are references.
-``LearnedPolicy`` runs an actor exported by ``training``
-(``deck-sim train``) from a weights-only ``.npz`` file with numpy alone, ``EnsemblePolicy`` several such actors
-by the mean of their actions (``load_actor`` reads either file); ``mddpg``, ``ddpg``, ``dqn`` and ``a2c``
-name the policies shipped in ``deck_sim/trained/`` for the environment's scene. The DQN and A2C files are the
-stable-baselines3 networks exported to the same format (``training.baselines.export_sb3``), so evaluating them
-needs neither stable-baselines3 nor ``training``.
+``LearnedPolicy`` runs one actor exported by ``training`` (``deck-sim train``), ``EnsemblePolicy`` several by the
+mean of their actions; ``load_actor`` reads either kind of file. The DQN and A2C files are stable-baselines3
+networks exported to the same format (``training.baselines.export_sb3``), so running them needs neither
+stable-baselines3 nor ``training``.
 """
 
 from __future__ import annotations
@@ -20,69 +14,11 @@ import re
 import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-from dm_control import composer
 
-from deck_sim.control.planners import APFPlanner, AStarPlanner, MPCPlanner, ScriptedPlanner
 from deck_sim.scenes import POLICY_EPISODE_FIELDS
-
-
-class Policy(Protocol):
-    """Anything that maps an observation to an action in [-1, 1]^2."""
-
-    def reset(self) -> None:
-        """Start of an episode."""
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """Action (2,) for this observation."""
-
-
-class ScriptedPolicy:
-    """The full-knowledge ``ScriptedPlanner`` reading the task's privileged ``planner_view``."""
-
-    def __init__(
-        self, env: composer.Environment, planner: ScriptedPlanner | APFPlanner | AStarPlanner | MPCPlanner | None = None
-    ) -> None:
-        self._env = env
-        self.planner = planner or ScriptedPlanner()
-
-    def reset(self) -> None:
-        """Forget the previous episode."""
-        self.planner.reset()
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """Plan from the task's full state (the observation is not needed); the planner's world-frame action is
-        turned into the task's action frame (``episode.frame``)."""
-        task = self._env.task
-        return task.action_from_world(self.planner.act(task.planner_view()))
-
-
-class RandomPolicy:
-    """Uniform random actions from a seeded generator."""
-
-    def __init__(self, seed: int = 0) -> None:
-        self._rng = np.random.default_rng(seed)
-
-    def reset(self) -> None:
-        """Nothing to reset; the generator continues."""
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """A uniform draw from [-1, 1]^2."""
-        return self._rng.uniform(-1.0, 1.0, 2)
-
-
-class ZeroPolicy:
-    """Always asks to stand still."""
-
-    def reset(self) -> None:
-        """Nothing to reset."""
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """(0, 0)."""
-        return np.zeros(2)
-
 
 ACTOR_FORMAT = "deck_sim.actor/1"
 """DDPG's actors: ReLU hidden layers, a tanh output of 2 (implicit ``activation`` and ``head``)."""
@@ -113,7 +49,6 @@ HEADS = {
     "clip": "clip(MLP(s), -1, 1), 2 outputs (the mean of A2C's Gaussian policy, as SB3's deterministic predict)",
     "argmax": "action_table[argmax MLP(s)], one output per row of the file's action_table (DQN's greedy action)",
 }
-TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 
 class PolicyFileError(ValueError):
@@ -523,73 +458,3 @@ def load_actor(path: str | os.PathLike[str]) -> LearnedPolicy | EnsemblePolicy:
         return EnsemblePolicy.from_arrays(arrays, meta, source=str(path))
     return LearnedPolicy(arrays, meta, source=str(path))
 
-
-SHIPPED_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
-CLASSICAL = {"apf": APFPlanner, "astar": AStarPlanner, "mpc": MPCPlanner}
-"""The classical references: planners on the task's ``planner_view`` that need no training."""
-SCRIPTED = {"scripted": False, "scripted-body": True}
-"""The full-knowledge scripted planner, by name: the value is its ``ScriptedPlanner.body`` (``scripted-body`` checks
-the aircraft's nose and tail on the way its tracker will really take it: the teacher of the ``body`` recipes)."""
-POLICY_NAMES = (*SCRIPTED, *CLASSICAL, "random", "zero", *SHIPPED_ALGOS)
-
-
-def shipped_policy_path(algo: str, scene: str) -> Path:
-    """The actor file shipped for ``algo`` (one of ``SHIPPED_ALGOS``) on ``scene``; ``PolicyFileError`` if none is."""
-    path = TRAINED_DIR / f"{scene}_{algo}.npz"
-    if not path.exists():
-        shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
-        raise PolicyFileError(
-            f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); "
-            f"train one with deck-sim train --algo {algo} --scene {scene}, or pass an actor file"
-        )
-    return path
-
-
-def shipped_log_dir(algo: str, scene: str) -> Path:
-    """Where the training log of the shipped ``algo`` actor of ``scene`` lies (``eval.csv``, ``config.json``;
-    ``scripts/train_shipped.py`` writes it, ``scripts/make_results.py`` draws its learning curve); it may not exist."""
-    return TRAINED_DIR / "logs" / f"{scene}_{algo}"
-
-
-def policy_file(name: str, scene: str) -> Path | None:
-    """The actor file behind policy ``name`` on ``scene``: a shipped one, a path, or None for a reference policy."""
-    if name in SHIPPED_ALGOS:
-        return shipped_policy_path(name, scene)
-    if name.endswith(".npz") or os.sep in name:
-        return Path(name)
-    return None
-
-
-REFERENCE_PREDICTOR = "mpc"
-"""The predictor whose forecast the classical references plan around (the one MDDPG is trained on)."""
-
-
-def policy_overrides(name: str, scene: str) -> dict[str, Any]:
-    """The scene fields (``deck_sim.load`` keywords) policy ``name`` runs with on ``scene`` unless told otherwise:
-    the oracle for ``scripted`` and ``scripted-body``, ``REFERENCE_PREDICTOR`` for the classical references, a
-    learned actor's own predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and
-    ``zero``."""
-    if name in SCRIPTED:
-        return {"episode__predictor": "oracle"}
-    if name in CLASSICAL:
-        return {"episode__predictor": REFERENCE_PREDICTOR}
-    path = policy_file(name, scene)
-    return load_actor(path).scene_overrides if path is not None else {}
-
-
-def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``scripted-body``, ``apf``,
-    ``astar``, ``mpc``, ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an
-    actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
-    if name in SCRIPTED:
-        return ScriptedPolicy(env, ScriptedPlanner(body=SCRIPTED[name]))
-    if name in CLASSICAL:
-        return ScriptedPolicy(env, CLASSICAL[name]())
-    if name == "random":
-        return RandomPolicy(seed)
-    if name == "zero":
-        return ZeroPolicy()
-    path = policy_file(name, env.task.spec.name)
-    if path is not None:
-        return load_actor(path)
-    raise ValueError(f"unknown policy {name!r}; expected one of {', '.join(POLICY_NAMES)} or an actor .npz file")

@@ -1,32 +1,13 @@
-"""Task-suite evaluation: agents x scenes x held-out episodes -> metrics, tables with confidence intervals, plots
-and episode logs.
-
-``evaluate(EvalConfig(...))`` plays ``episodes`` episodes of every scene with every agent. Episode ``i`` of a scene
-is reset with seed ``seed + i`` (``episode_seed``), the same layout and movers for every agent, and every seed lies
-below ``training.config.TRAIN_SEED_BASE``, where all training and demonstration seeds start, so no evaluation
-episode was ever trained on. An episode's result depends on its seed alone (not on what the worker ran before), so
-the serial, process-pool and Ray backends give identical results; units of a few episodes are handed to workers
-as they free up. Each unit that records writes its own MCAP log (``logs/``).
-
-Agents: the learned policies shipped in ``deck_sim/trained`` (``mddpg``, ``ddpg``, ``dqn``, ``a2c``), an actor file
-(``label=path.npz``), and the references that need no training: ``apf``, ``astar`` and ``mpc`` (classical
-planners, ``deck_sim.control.planners``; they plan around the MPC predictor's forecast, the same one MDDPG sees),
-``scripted`` (the full-knowledge planner with the movers' true future: the solvability ceiling), ``scripted-body``
-(the same planner checking an aircraft's nose and tail on the way its tracker will really take it), ``random`` and
-``zero``.
-
-``write_report`` turns the results into ``summary.json``, ``episodes.csv``, ``summary.csv`` and ``results.md``
-(the paper's Tables 1-3 beside ours), and ``plot_learning_curves`` / ``plot_trajectories`` draw the figures.
-"""
+"""The evaluation's engine: what to evaluate (``EvalConfig``), work units of a few episodes, the serial,
+process-pool and Ray backends that run them, and ``evaluate``, which gathers every episode's record."""
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
-import math
 import os
 import platform
+import socket
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -37,45 +18,23 @@ from typing import Any
 
 import numpy as np
 
-from deck_sim.metrics import (
-    OUTCOMES,
-    mean_interval,
-    near_misses,
-    prediction_errors,
-    rate_interval,
-    shortest_path,
-)
-from training.config import TRAIN_SEED_BASE
+from deck_sim import agents
+from deck_sim.evaluation.report import jsonable, summarize_agent
+from deck_sim.metrics import near_misses, prediction_errors, shortest_path
 
 log = logging.getLogger(__name__)
 
-LEARNED_AGENTS = ("mddpg", "ddpg", "dqn", "a2c")
-"""Agents trained by ``deck-sim train`` and shipped per scene in ``deck_sim/trained``."""
-CLASSICAL_AGENTS = ("apf", "astar", "mpc")
-"""Classical references of ``deck_sim.control.planners``; they plan around the forecast of
-``deck_sim.policies.REFERENCE_PREDICTOR``."""
-OTHER_AGENTS = ("scripted", "scripted-body", "random", "zero")
-AGENTS = LEARNED_AGENTS + CLASSICAL_AGENTS + OTHER_AGENTS
+AGENTS = tuple(agents.AGENTS)
+"""Every agent name an evaluation accepts (``deck_sim.agents``), besides ``label=path`` to an actor file."""
+DEFAULT_AGENTS = ("mddpg", "ddpg", "apf", "astar", "mpc")
+"""What ``deck-sim eval`` evaluates unless told: the paper's learned agents and the classical references."""
+TRAIN_SEED_BASE = 1_000_000
+"""Every training and demonstration episode is seeded at or above this; evaluation seeds lie below it."""
 DEFAULT_SEED = 100_000
 """Seed of episode 0 of an evaluation (episode i: DEFAULT_SEED + i)."""
 BACKENDS = ("serial", "process", "ray")
 
-PAPER = {
-    # Success rate ("accuracy", mean of 100 sampled episodes) and mean path length / total turning angle
-    # (degrees, Unity units) of paper Tables 1-3 (../shared/reference/paper.md); the paper reports deck scenes only.
-    "success": {
-        "deck1": {"dqn": 0.90, "a2c": 0.67, "ddpg": 0.92, "mddpg": 0.98},
-        "deck2": {"dqn": 0.84, "a2c": 0.64, "ddpg": 0.82, "mddpg": 0.91},
-    },
-    "path_length": {
-        "deck1": {"dqn": 438.22, "a2c": 352.60, "ddpg": 328.97, "mddpg": 328.95},
-        "deck2": {"dqn": 465.45, "a2c": 324.16, "ddpg": 320.61, "mddpg": 315.68},
-    },
-    "turning_deg": {
-        "deck1": {"dqn": 586.73, "a2c": 142.03, "ddpg": 139.96, "mddpg": 139.80},
-        "deck2": {"dqn": 522.62, "a2c": 158.00, "ddpg": 134.28, "mddpg": 128.41},
-    },
-}
+
 
 
 class EvalError(ValueError):
@@ -367,6 +326,7 @@ def _ray(units: Sequence[Unit], workers: int, address: str | None) -> Iterator[l
     if not ray.is_initialized():
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")
         if address:
+            check_ray_address(address)
             ray.init(address=address, log_to_driver=False)
         else:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
@@ -381,6 +341,30 @@ def _ray(units: Sequence[Unit], workers: int, address: str | None) -> Iterator[l
     finally:
         if started:
             ray.shutdown()
+
+
+RAY_CONNECT_TIMEOUT_S = 10.0
+"""How long ``check_ray_address`` waits for a Ray head to accept a connection."""
+
+
+def check_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """Raise ``EvalError`` within ``timeout`` seconds if nothing accepts a TCP connection at a Ray ``address``
+    (``host:port`` or ``ray://host:port``); ``ray.init`` itself would wait for minutes. ``auto`` and ``local`` are
+    left to Ray."""
+    if address in ("auto", "local"):
+        return
+    hostport = address.removeprefix("ray://").rstrip("/")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise EvalError(f"--ray-address {address!r}: expected host:port or ray://host:port")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as err:
+        raise EvalError(
+            f"--ray-address {address!r}: no Ray cluster answers there ({err}); start one with `ray start --head` "
+            "or leave the option out to start a local Ray"
+        ) from None
 
 
 @dataclass
@@ -460,302 +444,6 @@ def evaluate(cfg: EvalConfig, progress: Callable[[int, int, list[dict]], None] |
 
 def same_results(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> bool:
     """Whether two lists of records (episodes or summaries) are equal, NaN equal to NaN."""
-    return json.dumps(_jsonable(list(a)), sort_keys=True) == json.dumps(_jsonable(list(b)), sort_keys=True)
+    return json.dumps(jsonable(list(a)), sort_keys=True) == json.dumps(jsonable(list(b)), sort_keys=True)
 
 
-# -- summaries and reports -------------------------------------------------------------------------------------
-
-
-def summarize_agent(rows: Sequence[dict[str, Any]], scene: str, agent: str) -> dict[str, Any]:
-    """Rates (with Wilson 95 % intervals) and means (with normal 95 % intervals) of one agent on one scene.
-
-    Path length, its ratio to the shortest static path, turning angle and time to goal are over successful
-    episodes (as the paper's tables); reward, clearance and near misses over all; ADE/FDE over the episodes the
-    predictor ran in, weighted by the (step, mover) samples scored.
-    """
-    mine = [r for r in rows if r["scene"] == scene and r["agent"] == agent]
-    n = len(mine)
-    out: dict[str, Any] = {"scene": scene, "agent": agent, "episodes": n}
-    if not n:
-        return out
-    out["predictor"] = mine[0]["predictor"]
-    for o in OUTCOMES:
-        k = sum(r["outcome"] == o for r in mine)
-        lo, hi = rate_interval(k, n)
-        out[f"{o}_rate"], out[f"{o}_ci"] = k / n, [lo, hi]
-    ok = [r for r in mine if r["outcome"] == "goal"]
-    ratios = [r["path_length"] / r["shortest_path"] for r in ok if r["shortest_path"] > 0]
-    for name, values in (
-        ("reward", [r["reward"] for r in mine]),
-        ("path_length", [r["path_length"] for r in ok]),
-        ("shortest_ratio", ratios),
-        ("turning_deg", [r["turning_angle_deg"] for r in ok]),
-        ("time_to_goal", [r["sim_time"] for r in ok]),
-        ("min_clearance", [r["min_clearance"] for r in mine]),
-        ("near_misses", [r["near_misses"] for r in mine]),
-    ):
-        m, lo, hi = mean_interval(values)
-        out[name], out[f"{name}_ci"] = m, [lo, hi]
-    out["worst_clearance"] = float(min(r["min_clearance"] for r in mine))
-    out["near_miss_m"] = float(mine[0]["near_miss_m"])
-    scored = [r for r in mine if r["prediction_samples"] > 0]
-    weights = np.array([r["prediction_samples"] for r in scored], dtype=np.float64)
-    for name in ("ade", "fde"):
-        out[name] = float(np.average([r[name] for r in scored], weights=weights)) if scored else float("nan")
-    out["collision_partners"] = _count(r["collision_partner"] for r in mine if r["outcome"] == "collision")
-    return out
-
-
-def _count(items: Iterable[str | None]) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for it in items:
-        kind = str(it).rstrip("0123456789_/").split("/")[-1] or str(it)
-        counts[kind] = counts.get(kind, 0) + 1
-    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
-
-
-def _pct(s: dict, key: str) -> str:
-    lo, hi = s[f"{key}_ci"]
-    return f"{100 * s[f'{key}_rate']:.1f} ({100 * lo:.0f}-{100 * hi:.0f})"
-
-
-def _num(s: dict, key: str, spec: str = ".1f") -> str:
-    v = s.get(key, float("nan"))
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return "-"
-    lo, hi = s[f"{key}_ci"]
-    half = (hi - lo) / 2
-    return f"{v:{spec}} ± {half:{spec}}"
-
-
-def _paper(table: str, scene: str, agent: str, spec: str) -> str:
-    v = PAPER[table].get(scene, {}).get(agent)
-    if v is None:
-        return "-"
-    return f"{100 * v:.0f}" if table == "success" else f"{v:{spec}}"
-
-
-def _find(res: EvalResults, scene: str, agent: str) -> dict[str, Any] | None:
-    try:
-        return res.summary(scene, agent)
-    except KeyError:
-        return None
-
-
-def _evaluated(res: EvalResults, scenes: list[str], agents: list[str]) -> Iterator[tuple[str, str, dict[str, Any]]]:
-    """(scene, agent, summary) of every pair that was evaluated, scene-major."""
-    for s in scenes:
-        for a in agents:
-            x = _find(res, s, a)
-            if x is not None:
-                yield s, a, x
-
-
-def markdown_tables(res: EvalResults) -> str:
-    """The paper's tables (success; path length and turning angle) with ours beside them, then every metric.
-
-    A scene and agent pair that was not evaluated reads ``n/a``.
-    """
-    scenes = list(dict.fromkeys(s["scene"] for s in res.summaries))
-    agents = list(dict.fromkeys(s["agent"] for s in res.summaries))
-    n = res.config.episodes
-    lines = [
-        f"Each cell: {n} held-out episodes per scene and agent (seeds {res.config.seed}-{res.config.seed + n - 1}); "
-        "rates in % with Wilson 95 % intervals, means ± the half-width of their Student-t 95 % interval. "
-        "Path length, its ratio and turning angle are over successful episodes, as in the paper. "
-        "`apf`, `astar`, `mpc` and `scripted` plan on the task's privileged view (every obstacle's exact footprint "
-        "and the movers' forecast), not on the observation the learned agents get.",
-        "",
-        "**Success rate, % (paper Table 1)**: the paper's figure is the mean of 100 success rates sampled from its "
-        "training curves in Unity; ours is the shipped policy on held-out episodes.",
-        "",
-        "| agent | " + " | ".join(f"{s} ours | {s} paper" for s in scenes) + " |",
-        "|---|" + "---:|---:|" * len(scenes),
-    ]
-    for a in agents:
-        cells = []
-        for s in scenes:
-            x = _find(res, s, a)
-            cells += [_pct(x, "goal") if x else "n/a", _paper("success", s, a, ".0f")]
-        lines.append(f"| {a} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
-        "**Path length and turning angle (paper Tables 2-3)**: ours in metres and as a ratio to the shortest path "
-        "around the static obstacles of a disc as wide as the agent's narrowest half-extent, ending on the goal "
-        "disc (a lower bound of any collision-free path; the paper's Unity units do not convert); turning angle "
-        "in degrees per episode.",
-        "",
-        "| agent | scene | length m | length / shortest | turning deg | paper length (Unity) | paper turning deg |",
-        "|---|---|---:|---:|---:|---:|---:|",
-    ]
-    for s, a, x in _evaluated(res, scenes, agents):
-        lines.append(
-            f"| {a} | {s} | {_num(x, 'path_length')} | {_num(x, 'shortest_ratio', '.3f')} | "
-            f"{_num(x, 'turning_deg')} | {_paper('path_length', s, a, '.2f')} | "
-            f"{_paper('turning_deg', s, a, '.2f')} |"
-        )
-    lines += [
-        "",
-        "**Reward and safety** (the paper gives reward only as curves: about 150 at the plateau for DQN, DDPG and "
-        "MDDPG, about 100 for A2C, on its own reward constants)",
-        "",
-        "Near misses: passes closer than the threshold (clearance between the agent's disc and an obstacle's "
-        "footprint); worst clearance: the smallest over all episodes (negative: the discs overlapped).",
-        "",
-        "| agent | scene | predictor | collision % | timeout % | off surface % | diverged % | mean reward "
-        "| time to goal s | near misses / ep (threshold) | worst clearance m | ADE m | FDE m |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for s, a, x in _evaluated(res, scenes, agents):
-        ade = "-" if math.isnan(x["ade"]) else f"{x['ade']:.2f}"
-        fde = "-" if math.isnan(x["fde"]) else f"{x['fde']:.2f}"
-        lines.append(
-            f"| {a} | {s} | {x['predictor']} | {_pct(x, 'collision')} | {_pct(x, 'timeout')} | "
-            f"{_pct(x, 'off_surface')} | {_pct(x, 'diverged')} | {_num(x, 'reward')} | "
-            f"{_num(x, 'time_to_goal')} | {_num(x, 'near_misses', '.2f')} ({x['near_miss_m']:g} m) | "
-            f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    return x
-
-
-def machine() -> str:
-    """A one-line description of this machine (for reports)."""
-    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
-
-
-def write_report(res: EvalResults, out: str | os.PathLike[str]) -> dict[str, Path]:
-    """Write ``summary.json``, ``summary.csv``, ``episodes.csv`` and ``results.md`` to ``out``; returns the paths.
-
-    Each file is written to a temporary name and renamed, so a failure leaves no half-written report.
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {k: out / k for k in ("summary.json", "summary.csv", "episodes.csv", "results.md")}
-    meta = {
-        "config": asdict(res.config),
-        "machine": machine(),
-        "wall_s": res.wall_s,
-        "evaluated": [[s["scene"], s["agent"]] for s in res.summaries],  # a merged config may list more pairs
-        "summaries": res.summaries,
-        "episodes": res.episodes,
-    }
-    _atomic_text(paths["summary.json"], json.dumps(_jsonable(meta), indent=1))
-    _atomic_csv(paths["episodes.csv"], res.episodes)
-    flat = []
-    for s in res.summaries:
-        row = {}
-        for k, v in s.items():
-            if isinstance(v, list):
-                row[f"{k}_low"], row[f"{k}_high"] = v
-            elif isinstance(v, dict):
-                row[k] = json.dumps(v)
-            else:
-                row[k] = v
-        flat.append(row)
-    _atomic_csv(paths["summary.csv"], flat)
-    _atomic_text(paths["results.md"], "# deck_sim evaluation\n\n" + markdown_tables(res))
-    return paths
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def _atomic_csv(path: Path, rows: Sequence[dict]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    fields: list[str] = []
-    for r in rows:
-        fields += [k for k in r if k not in fields]
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        w.writerows(rows)
-    os.replace(tmp, path)
-
-
-def plot_learning_curves(runs: dict[str, str | os.PathLike[str]], out: str | os.PathLike[str], title: str = "") -> Path:
-    """Average reward and success against training steps (the paper's Figs. 8-11) from training run folders.
-
-    Args:
-        runs: label -> a run folder written by ``deck-sim train`` (its ``eval.csv``: held-out evaluations).
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11, 4))
-    FigureCanvasAgg(fig)
-    ax_r, ax_s = fig.subplots(1, 2)
-    for label, run in runs.items():
-        path = Path(run) / "eval.csv"
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: no evaluation log in run folder {run} (train with deck-sim train)")
-        with open(path) as f:
-            rows = list(csv.DictReader(f))
-        if not rows:
-            raise ValueError(f"{path} holds no evaluation rows")
-        polished = [r for r in rows if r.get("polished") == "1"]  # the final cloning fit, at the last step
-        rows = [r for r in rows if r.get("polished") != "1"]
-        step = [float(r["step"]) for r in rows]
-        (line,) = ax_r.plot(step, [float(r["reward"]) for r in rows], marker="o", ms=3, label=label)
-        ax_s.plot(step, [100 * float(r["success"]) for r in rows], marker="o", ms=3, label=label)
-        for r in polished:
-            kw = {"marker": "*", "ms": 10, "color": line.get_color(), "linestyle": "none"}
-            ax_r.plot([float(r["step"])], [float(r["reward"])], **kw)
-            ax_s.plot([float(r["step"])], [100 * float(r["success"])], **kw)
-    ax_r.set(xlabel="environment steps", ylabel="average episode reward (held-out)", title=title or "reward")
-    ax_s.set(xlabel="environment steps", ylabel="success % (held-out)", title="success", ylim=(0, 100))
-    for ax in (ax_r, ax_s):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    return out
-
-
-def plot_trajectories(res: EvalResults, out_dir: str | os.PathLike[str], per_agent: int = 1) -> list[Path]:
-    """A top-down PNG of the first ``per_agent`` logged episodes of every scene and agent (from the MCAP logs)."""
-    from deck_sim.recording import EpisodeLog
-    from deck_sim.recording.plot import plot_episode
-
-    out_dir = Path(out_dir)
-    written = []
-    for path in map(Path, res.logs):
-        if not path.stem.endswith("-0000"):  # the first unit of each scene and agent holds its first episodes
-            continue
-        episodes = EpisodeLog(path).episodes
-        for ep in episodes[:per_agent]:
-            dest = out_dir / f"{path.stem.removesuffix('-0000')}-episode{ep.index}.png"
-            written.append(plot_episode(ep, dest, width_inches=12.0))
-    return written
-
-
-__all__ = [
-    "AGENTS",
-    "EvalConfig",
-    "EvalError",
-    "EvalResults",
-    "episode_seed",
-    "evaluate",
-    "markdown_tables",
-    "plot_learning_curves",
-    "plot_trajectories",
-    "clear_worker_cache",
-    "run_unit",
-    "same_results",
-    "summarize_agent",
-    "write_report",
-]

@@ -1,0 +1,80 @@
+"""The one registry of agent names: what ``deck-sim run --policy``, ``deck-sim eval --agents``, the evaluation's
+reports and the training configuration accept and how they describe it.
+
+Light on purpose (no MuJoCo, no numpy): the command line reads it to build its help.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+KINDS = ("learned", "classical", "oracle", "baseline")
+"""``learned``: an actor trained by ``deck-sim train`` (shipped per scene in ``deck_sim/trained``);
+``classical``: a planner of ``deck_sim.control.planners`` on the MPC predictor's forecast, no training;
+``oracle``: the full-knowledge scripted planner (the movers' true future): the solvability ceiling and the teacher;
+``baseline``: a trivial reference."""
+
+
+@dataclass(frozen=True)
+class AgentInfo:
+    """One named agent.
+
+    Attributes:
+        name: The name on the command line and in reports.
+        kind: One of ``KINDS``.
+        summary: What it is, in a few words.
+        trainer: For learned agents, what trains it: ``ddpg`` (``training.ddpg``) or ``sb3``
+            (stable-baselines3 through ``training.baselines``); empty otherwise.
+    """
+
+    name: str
+    kind: str
+    summary: str
+    trainer: str = ""
+
+
+AGENTS: dict[str, AgentInfo] = {
+    a.name: a
+    for a in (
+        AgentInfo("mddpg", "learned", "the paper's MDDPG: DDPG on the observation and the MPC forecast", "ddpg"),
+        AgentInfo("ddpg", "learned", "the same DDPG without prediction", "ddpg"),
+        AgentInfo("dqn", "learned", "DQN over 17 discrete displacements (stable-baselines3)", "sb3"),
+        AgentInfo("a2c", "learned", "A2C (stable-baselines3)", "sb3"),
+        AgentInfo("apf", "classical", "artificial potential field"),
+        AgentInfo("astar", "classical", "A* over a visibility graph with the movers' predicted sweeps"),
+        AgentInfo("mpc", "classical", "CasADi/IPOPT MPC along the static shortest path"),
+        AgentInfo("scripted", "oracle", "full-knowledge planner: shortest path, speed checked on the true future"),
+        AgentInfo("scripted-body", "oracle", "the same, checking the aircraft's nose and tail on its real turn"),
+        AgentInfo("random", "baseline", "uniform random actions"),
+        AgentInfo("zero", "baseline", "always the zero action (stand still)"),
+    )
+}
+"""Every named agent, in the order help texts list them."""
+
+
+def names(kind: str | None = None, trainer: str | None = None) -> tuple[str, ...]:
+    """Agent names, optionally of one ``kind`` and/or ``trainer``, in registry order."""
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"unknown agent kind {kind!r}; expected one of {', '.join(KINDS)}")
+    return tuple(
+        a.name
+        for a in AGENTS.values()
+        if (kind is None or a.kind == kind) and (trainer is None or a.trainer == trainer)
+    )
+
+
+LEARNED = names("learned")
+"""Agents trained by ``deck-sim train`` and shipped per scene in ``deck_sim/trained``."""
+CLASSICAL = names("classical")
+"""Classical references; they plan around the forecast of ``deck_sim.policies.REFERENCE_PREDICTOR``."""
+ORACLES = names("oracle")
+"""The full-knowledge scripted planner, by name."""
+BASELINES = names("baseline")
+
+
+def policy_help() -> str:
+    """One sentence for ``--help`` listing every agent by kind, and actor files."""
+    return (
+        f"a shipped learned policy ({', '.join(LEARNED)}), a classical reference ({', '.join(CLASSICAL)}), "
+        f"the full-knowledge planner ({', '.join(ORACLES)}), {' or '.join(BASELINES)}, or an actor .npz file"
+    )

@@ -1,0 +1,175 @@
+"""``deck-sim scenes`` and ``deck-sim run``: list the scenes; play episodes with a policy and report the metrics."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import json
+import time
+from pathlib import Path
+
+from deck_sim.cli._common import add_command, policy_label, scene_overrides
+from deck_sim.progress import progress
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    """Print one line per scene: arena, obstacle counts, default predictor, time limit, description."""
+    del args
+    from deck_sim.scenes import load_scene, scene_names
+
+    print(
+        f"{'scene':8s} {'arena':7s} {'static':>6s} {'dynamic':>7s} {'predictor':>18s} {'limit s':>7s}  description"
+    )
+    for name in scene_names():
+        s = load_scene(name)
+        print(
+            f"{name:8s} {s.arena:7s} {s.static.count:6d} {s.movers.count:7d} {s.episode.predictor:>18s} "
+            f"{s.episode.time_limit:7.0f}  {s.description}"
+        )
+    return 0
+
+
+def format_summary(name: str, policy: str, predictor: str, summary: dict[str, float], wall: float) -> str:
+    """The metrics of a run (``deck_sim.metrics.summarize``) as a two-column Markdown table."""
+    rows = [
+        ("episodes", f"{summary['episodes']:.0f}"),
+        ("success", f"{100 * summary['goal_rate']:.1f} %"),
+        ("collision", f"{100 * summary['collision_rate']:.1f} %"),
+        ("timeout", f"{100 * summary['timeout_rate']:.1f} %"),
+        ("left the surface", f"{100 * summary['off_surface_rate']:.1f} %"),
+        ("physics diverged", f"{100 * summary['diverged_rate']:.1f} %"),
+        ("path length (successes)", f"{summary['path_length']:.1f} m"),
+        ("path / straight distance", f"{summary['path_ratio']:.3f}"),
+        ("turning angle (successes)", f"{summary['turning_angle_deg']:.1f} deg"),
+        ("time to goal", f"{summary['time_to_goal']:.1f} s"),
+        ("mean episode reward", f"{summary['mean_reward']:.1f}"),
+        ("minimum clearance", f"{summary['min_clearance']:.2f} m"),
+        ("wall time", f"{wall:.1f} s"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    head = f"| {'scene ' + name + ', policy ' + policy + ', predictor ' + predictor:<{width + 14}} |"
+    lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
+    lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
+    return "\n".join(lines)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Play ``--episodes`` episodes, print the metrics and write them (and the episode log) into the run's folder."""
+    import deck_sim
+    from deck_sim.metrics import summarize
+    from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.rollout import run_episode
+
+    overrides = policy_overrides(args.policy, Path(args.scene).stem)
+    if args.predictor:
+        overrides["episode__predictor"] = args.predictor
+    scene_set = scene_overrides(args.scene_set)
+    for key, value in scene_set.items():
+        # an actor's observation fields (and --predictor) are not to be changed behind its back
+        if key in overrides and overrides[key] != value:
+            given = "--predictor" if key == "episode__predictor" and args.predictor else f"policy {args.policy!r}"
+            raise ValueError(
+                f"--scene-set {key.replace('__', '.')}={value!r} contradicts {given}, which needs {overrides[key]!r}"
+            )
+    overrides.update(scene_set)
+    env = deck_sim.load(args.scene, seed=args.seed, **overrides)
+    predictor = env.task.predictor.name
+    policy = make_policy(args.policy, env, seed=args.seed)
+    # a variant of the scene gets its own default folder (its fields in the name), not the plain scene's
+    variant = "".join(f"-{k.split('__', 1)[1]}={v}" for k, v in scene_set.items())
+    default_out = Path("runs") / f"{args.scene}-{policy_label(args.policy)}-seed{args.seed}{variant}"
+    out = Path(args.out) if args.out else default_out
+    recorder = _open_run_recorder(args, env, out)
+    results = []
+    t0 = time.perf_counter()
+    bar = progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
+    with bar, recorder or contextlib.nullcontext():  # the log is finished even if a run fails
+        for k in bar:
+            r = run_episode(env, policy, episode=k, recorder=recorder)
+            results.append(r)
+            wins = sum(x.outcome == "goal" for x in results)
+            bar.set_postfix(success=f"{100 * wins / len(results):.0f}%", last=r.outcome)
+    wall = time.perf_counter() - t0
+    summary = summarize(results)
+    table = format_summary(args.scene, args.policy, predictor, summary, wall)
+    print(table)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(results[0].as_dict()))
+        writer.writeheader()
+        writer.writerows(r.as_dict() for r in results)
+    meta = {
+        "scene": args.scene,
+        "policy": args.policy,
+        "predictor": predictor,
+        "seed": args.seed,
+        "episodes": args.episodes,
+        "scene_set": scene_set,
+        "deck_sim": deck_sim.__version__,
+        "summary": summary,
+        "wall_s": wall,
+    }
+    (out / "summary.json").write_text(json.dumps(meta, indent=2))
+    (out / "results.md").write_text(table + "\n")
+    print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'}")
+    if recorder is not None:
+        print(f"wrote {recorder.path} (episode log: deck-sim log info {recorder.path})")
+    return 0
+
+
+def _add_record_arguments(p: argparse.ArgumentParser) -> None:
+    """``--record FILE`` / ``--no-record`` of ``deck-sim run``."""
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="FILE.mcap",
+        help="write every episode to this MCAP episode log (default: episodes.mcap in the run's folder)",
+    )
+    p.add_argument("--no-record", action="store_true", help="write no episode log")
+
+
+def _open_run_recorder(args: argparse.Namespace, env, out: Path):  # noqa: ANN001, ANN202 - lazy imports
+    """The recorder of ``deck-sim run`` (``None`` with ``--no-record``), replacing an earlier log of the run."""
+    if args.no_record:
+        return None
+    from deck_sim.rollout import open_recorder
+
+    path = Path(args.record) if args.record else out / "episodes.mcap"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    config = {k: getattr(args, k) for k in ("command", "scene", "policy", "episodes", "seed", "predictor")}
+    from deck_sim.policies import policy_file
+
+    actor = policy_file(args.policy, env.task.spec.name)
+    return open_recorder(path, env, seed=args.seed, policy=args.policy, config=config, overwrite=True,
+                         checkpoint=str(actor) if actor is not None else "")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``scenes`` and ``run`` to the subcommands."""
+    from deck_sim.agents import policy_help
+
+    add_command(sub, "scenes", cmd_scenes, "list the scenes with their obstacle counts, predictor and time limit")
+
+    p = add_command(
+        sub, "run", cmd_run, "play episodes with a policy and report the metrics",
+        "Writes results.md, summary.json and episodes.csv into the run's folder and every episode into an MCAP\n"
+        "log (episodes.mcap) that Foxglove opens. Example:\n"
+        "  deck-sim run --scene deck1 --policy mddpg --episodes 10 --seed 1000",
+    )
+    p.add_argument("--scene", default="deck1", help="scene name or TOML path")
+    p.add_argument("--policy", default="scripted", help=policy_help())
+    p.add_argument("--episodes", type=int, default=20, help="episodes to play")
+    p.add_argument("--seed", type=int, default=0, help="seeds layouts and movers")
+    p.add_argument(
+        "--predictor",
+        default=None,
+        help="none, constant_velocity, oracle or mpc (default: oracle for scripted, else the scene's)",
+    )
+    p.add_argument("--scene-set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                   help="override a field of the scene file, e.g. --scene-set movers.agent_yield_braking=2.0 "
+                        "(recorded in summary.json)")
+    p.add_argument("--out", default=None,
+                   help="folder for results.md, summary.json, episodes.csv (default: runs/<scene>-<policy>-seed<seed>)")
+    p.add_argument("--quiet", action="store_true", help="no progress report")
+    _add_record_arguments(p)

@@ -1,0 +1,72 @@
+"""Policies with the ``act(observation) -> action`` interface: references that need no training, and learned ones.
+
+``scripted`` plans with full knowledge of the scene through the task's ``planner_view`` (it plans around the
+observation's predicted mover positions: the ``oracle`` predictor shows it the movers' true future, ``mpc`` the
+MPC forecast); ``apf``, ``astar`` and ``mpc`` are the classical references of ``deck_sim.control.planners`` on
+the same view (the evaluation runs them with the MPC predictor); ``random`` and ``zero`` are references
+(``reference``). ``LearnedPolicy`` runs an actor exported by ``training`` (``deck-sim train``) from a weights-only
+``.npz`` file with numpy alone, ``EnsemblePolicy`` several such actors by the mean of their actions (``actors``);
+``mddpg``, ``ddpg``, ``dqn`` and ``a2c`` name the policies shipped in ``deck_sim/trained/`` for the environment's
+scene (``registry``; the names are ``deck_sim.agents``'s).
+"""
+
+from deck_sim.policies.actors import (
+    ACTIVATIONS,
+    ACTOR_FORMAT,
+    ACTOR_FORMAT_SETS,
+    ACTOR_FORMAT_V2,
+    ENSEMBLE_FORMAT,
+    HEADS,
+    OBSTACLE_SETS,
+    EnsemblePolicy,
+    LearnedPolicy,
+    PolicyFileError,
+    load_actor,
+    obstacle_sets,
+    set_indices,
+)
+from deck_sim.policies.reference import Policy, RandomPolicy, ScriptedPolicy, ZeroPolicy
+from deck_sim.policies.registry import (
+    CLASSICAL,
+    POLICY_NAMES,
+    REFERENCE_PREDICTOR,
+    SCRIPTED,
+    SHIPPED_ALGOS,
+    TRAINED_DIR,
+    make_policy,
+    policy_file,
+    policy_overrides,
+    shipped_log_dir,
+    shipped_policy_path,
+)
+
+__all__ = [
+    "ACTIVATIONS",
+    "ACTOR_FORMAT",
+    "ACTOR_FORMAT_SETS",
+    "ACTOR_FORMAT_V2",
+    "CLASSICAL",
+    "ENSEMBLE_FORMAT",
+    "HEADS",
+    "OBSTACLE_SETS",
+    "POLICY_NAMES",
+    "REFERENCE_PREDICTOR",
+    "SCRIPTED",
+    "SHIPPED_ALGOS",
+    "TRAINED_DIR",
+    "EnsemblePolicy",
+    "LearnedPolicy",
+    "Policy",
+    "PolicyFileError",
+    "RandomPolicy",
+    "ScriptedPolicy",
+    "ZeroPolicy",
+    "load_actor",
+    "make_policy",
+    "obstacle_sets",
+    "policy_file",
+    "policy_overrides",
+    "set_indices",
+    "shipped_log_dir",
+    "shipped_policy_path",
+]

@@ -1,0 +1,90 @@
+"""Policies by name: the shipped actors of each scene, the references, and the scene fields each runs with.
+
+The names come from ``deck_sim.agents``, the one registry that the command line, the evaluation and the training
+configuration read.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from dm_control import composer
+
+from deck_sim import agents
+from deck_sim.control.planners import APFPlanner, AStarPlanner, MPCPlanner, ScriptedPlanner
+from deck_sim.policies.actors import PolicyFileError, load_actor
+from deck_sim.policies.reference import Policy, RandomPolicy, ScriptedPolicy, ZeroPolicy
+
+TRAINED_DIR = Path(__file__).resolve().parent.parent / "trained"
+"""Where the shipped actors lie: ``<scene>_<algo>.npz``."""
+SHIPPED_ALGOS = agents.LEARNED
+CLASSICAL = dict(zip(agents.CLASSICAL, (APFPlanner, AStarPlanner, MPCPlanner), strict=True))
+"""The classical references: planners on the task's ``planner_view`` that need no training."""
+SCRIPTED = dict(zip(agents.ORACLES, (False, True), strict=True))
+"""The full-knowledge scripted planner, by name: the value is its ``ScriptedPlanner.body`` (``scripted-body`` checks
+the aircraft's nose and tail on the way its tracker will really take it: the teacher of the ``body`` recipes)."""
+POLICY_NAMES = tuple(agents.AGENTS)
+
+
+def shipped_policy_path(algo: str, scene: str) -> Path:
+    """The actor file shipped for ``algo`` (one of ``SHIPPED_ALGOS``) on ``scene``; ``PolicyFileError`` if none is."""
+    path = TRAINED_DIR / f"{scene}_{algo}.npz"
+    if not path.exists():
+        shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
+        raise PolicyFileError(
+            f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); "
+            f"train one with deck-sim train --algo {algo} --scene {scene}, or pass an actor file"
+        )
+    return path
+
+
+def shipped_log_dir(algo: str, scene: str) -> Path:
+    """Where the training log of the shipped ``algo`` actor of ``scene`` lies (``eval.csv``, ``config.json``;
+    ``scripts/train_shipped.py`` writes it, ``scripts/make_results.py`` draws its learning curve); it may not exist."""
+    return TRAINED_DIR / "logs" / f"{scene}_{algo}"
+
+
+def policy_file(name: str, scene: str) -> Path | None:
+    """The actor file behind policy ``name`` on ``scene``: a shipped one, a path, or None for a reference policy."""
+    if name in SHIPPED_ALGOS:
+        return shipped_policy_path(name, scene)
+    if name.endswith(".npz") or os.sep in name:
+        return Path(name)
+    return None
+
+
+REFERENCE_PREDICTOR = "mpc"
+"""The predictor whose forecast the classical references plan around (the one MDDPG is trained on)."""
+
+
+def policy_overrides(name: str, scene: str) -> dict[str, Any]:
+    """The scene fields (``deck_sim.load`` keywords) policy ``name`` runs with on ``scene`` unless told otherwise:
+    the oracle for ``scripted`` and ``scripted-body``, ``REFERENCE_PREDICTOR`` for the classical references, a
+    learned actor's own predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and
+    ``zero``."""
+    if name in SCRIPTED:
+        return {"episode__predictor": "oracle"}
+    if name in CLASSICAL:
+        return {"episode__predictor": REFERENCE_PREDICTOR}
+    path = policy_file(name, scene)
+    return load_actor(path).scene_overrides if path is not None else {}
+
+
+def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
+    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``scripted-body``, ``apf``,
+    ``astar``, ``mpc``, ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an
+    actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
+    if name in SCRIPTED:
+        return ScriptedPolicy(env, ScriptedPlanner(body=SCRIPTED[name]))
+    if name in CLASSICAL:
+        return ScriptedPolicy(env, CLASSICAL[name]())
+    if name == "random":
+        return RandomPolicy(seed)
+    if name == "zero":
+        return ZeroPolicy()
+    path = policy_file(name, env.task.spec.name)
+    if path is not None:
+        return load_actor(path)
+    raise ValueError(f"unknown policy {name!r}; expected one of {', '.join(POLICY_NAMES)} or an actor .npz file")
