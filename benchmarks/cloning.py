@@ -1,4 +1,4 @@
-"""How far does cloning the teacher go? An offline DAgger probe on the states a shipped actor visits.
+"""How far does cloning the teacher go? Offline DAgger on the states a shipped actor visits.
 
     python benchmarks/cloning.py [--scene deck1] [--algo mddpg] [--states 160000] [--workers 2]
                                  [--variants plain,mirror,wide,sets] [--episodes 200] [--eval-seed 2000]

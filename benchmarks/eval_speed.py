@@ -5,8 +5,8 @@
 Both runs play the same seeded episodes (``deck_sim.evaluation``, no logs); the script checks that their results are
 identical, then prints the wall time of each, the speed-up and the parallel efficiency (serial time / (workers x
 parallel time)). Every run starts cold: the pool's time includes building the environment and policy (once, in the
-parent, which the forked workers inherit) and starting its workers. Targets (issue 6):
-at most 60 s for 100 episodes with 2 workers, efficiency at least 0.8. ``--ray`` adds a local Ray run.
+parent, which the forked workers inherit) and starting its workers. Targets: at most 60 s for 100 episodes with
+2 workers, efficiency at least 0.8. ``--ray`` adds a local Ray run.
 """
 
 from __future__ import annotations

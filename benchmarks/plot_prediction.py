@@ -8,9 +8,8 @@ at a few evenly spaced steps. Bottom: close-ups of three predictions: the two (o
 most on constant velocity, and the one where it loses most. The title gives the episode's mean FDE of each
 predictor over every step with a full horizon.
 
-The default seed, 5011, was picked (when this was written) among 5001-5012 for a long episode (123 steps); its
-MPC/constant-velocity FDE ratio (0.75) lies near the median of those twelve episodes (0.72; range 0.56-0.91), not
-at the best. With the deck scenes' stopping distance (session 12) it is 0.76 (2.15 m against 2.83 m), still 123 steps.
+The default seed, 5011, gives a long episode whose MPC/constant-velocity FDE ratio lies near the median of the
+episodes seeded 5001-5012, not at the best (the script prints the ratio; run it with other seeds to compare).
 
     python benchmarks/plot_prediction.py [--seed 5011] [--moments 4] [--out docs/prediction.png]
 """

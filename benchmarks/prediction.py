@@ -494,7 +494,7 @@ def main(argv: list[str] | None = None) -> None:
         f"deck2 control step (env.step, predictor none, scripted agent, {args.timing_steps} steps in 5 batches): "
         f"{1e3 * step_fast:.2f} ms fastest batch, {1e3 * step_med:.2f} ms median"
     )
-    print("\ntargets (issue 3):")
+    print("\ntargets:")
     for line in summary:
         print(f"  {line}")
     print("  MPC FDE <= 0.75x constant velocity on the deck scenes: see the deck1/deck2 lines above")

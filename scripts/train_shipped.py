@@ -15,10 +15,8 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
   ``training``.
 
 MDDPG and DDPG of a scene train for the same number of environment steps (``SHIPPED_RECIPES``); DQN and A2C
-for ``SB3_STEPS[scene]`` (the budget of the first shipped actors: 40,000 steps on deck 1 and the square, 60,000
-on deck 2). The MDDPG and DDPG recipes run 160,000 steps in about the wall-clock time the first recipe took for
-40,000 on the decks, by collecting four transitions per update instead of two. ``--steps`` sets one
-budget for every agent.
+for ``SB3_STEPS[scene]`` (40,000 steps on deck 1 and the square, 60,000 on deck 2). ``--steps`` sets one budget
+for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 shipped actor of each run (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the

@@ -1,8 +1,8 @@
 """Movers' behaviour rules and the scripted planner's clearance, numpy only (no MuJoCo).
 
 The golden file ``tests/data/behaviour_golden.npz`` holds every command and every piece of state of the movers
-over a crowded kinematic closed loop (``_closed_loop``), recorded by the vectorised-numpy behaviour before it was
-rewritten for speed (commit 7390662); the behaviour must reproduce it bit for bit. numpy's sin, cos and arctan2
+over a crowded kinematic closed loop (``_closed_loop``), recorded by a vectorised-numpy implementation of the same rules
+(the plain-float one is faster); the behaviour must reproduce it bit for bit. numpy's sin, cos and arctan2
 round their last bit otherwise with its AVX-512 kernels than with AVX2 alone, so the file holds their fingerprint
 on the recording machine, and a machine that rounds otherwise replays the loop with those kernels turned off; only
 where even that cannot round alike (another CPU family) is it every decision the same and every float within 1e-9.

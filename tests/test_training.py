@@ -357,8 +357,8 @@ def test_cli_trains_resumes_and_runs_the_exported_actor(tmp_path, capsys):
 
 def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
     import deck_sim
-    from deck_sim.policies import LearnedPolicy, PolicyFileError
     from deck_sim.cli import main
+    from deck_sim.policies import LearnedPolicy, PolicyFileError
 
     run = tmp_path / "run"
     Trainer(

@@ -49,8 +49,8 @@ class ScriptedPlanner:
     """Check each candidate speed on the way the agent will really go and with its whole body: an aircraft's
     rollout follows its tracker's kinematics (``control.tracking.rollout_displacements``: it turns on the move
     and cannot pivot) and the circles at its nose and tail (``PlannerView.agent_circles``) must keep the margins
-    too. Off: the agent's disc along the path, as if it could move sideways (the planner the shipped policies
-    before session 18 were taught by). Nothing changes for a walker, whose disc is its body."""
+    too. Off: the agent's disc along the path, as if it could move sideways. Nothing changes for a walker, whose
+    disc is its body."""
 
     def __post_init__(self) -> None:
         self.reset()

@@ -116,7 +116,8 @@ class NoPrediction:
 class ConstantVelocity:
     """Extrapolate each obstacle at the velocity of a least-squares line through its last ``window`` samples.
 
-    A line fit over 4 points was the most accurate constant-velocity variant in the probes (FINDINGS.md).
+    A constant speed-and-turn-rate fit does worse on movers that brake, dwell and depart
+    (``benchmarks/prediction_synthetic.py`` prints both).
     """
 
     horizon: int = 10

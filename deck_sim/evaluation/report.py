@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 PAPER = {
     # Success rate ("accuracy", mean of 100 sampled episodes) and mean path length / total turning angle
-    # (degrees, Unity units) of paper Tables 1-3 (../shared/reference/paper.md); the paper reports deck scenes only.
+    # (degrees, Unity units) of the paper's Tables 1-3; the paper reports deck scenes only.
     "success": {
         "deck1": {"dqn": 0.90, "a2c": 0.67, "ddpg": 0.92, "mddpg": 0.98},
         "deck2": {"dqn": 0.84, "a2c": 0.64, "ddpg": 0.82, "mddpg": 0.91},

@@ -192,7 +192,7 @@ class EpisodeSpec:
     ``position``, ``heading`` (the yaw's cos and sin, so the world can still be recovered), ``dynamic_size`` and
     ``edge_near`` stay as they are.
     The scripted and classical planners, which plan in the world, have their actions turned into this frame
-    (``NavigateTask.action_from_world``)."""
+    (``Navigate.action_from_world``)."""
     near_steps: int = 0
     """Also observe, at a scale the far field does not swamp, what lies within ``near_steps`` decision periods'
     reach (``near_steps * agent.reach`` metres): ``target_near`` (2), the target minus the agent with its length
