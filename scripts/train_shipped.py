@@ -64,6 +64,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
+from deck_sim.agents import AGENTS  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import (  # noqa: E402
     SHIPPED_ALGOS,
@@ -244,9 +245,15 @@ def main() -> None:
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
     mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")
+    mode.add_argument("--tables-only", action="store_true",
+                      help="rewrite deck_sim/trained/README.md and the README's table from results.json, nothing else")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="TrainConfig overrides (MDDPG and DDPG runs)")
     args = parser.parse_args()
+    if args.tables_only:
+        write_readme(read_report(TRAINED_DIR / "results.json"))
+        print(f"wrote {TRAINED_DIR / 'README.md'} and the table in {PROJECT_README}")
+        return
     fields = {}
     for item in args.set:
         k, _, v = item.partition("=")
@@ -400,17 +407,29 @@ def seeds_cell(seeds: list[int]) -> str:
     return f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; mean action)"
 
 
+def learnt_from(scene: str, algo: str) -> str:
+    """What the shipped ``algo`` of ``scene`` learnt from, read from its shipped training config: ``reward only``,
+    or the full-knowledge planner's demonstrations and labels (the teacher of ``training.envs``)."""
+    if AGENTS[algo].trainer == "sb3":  # stable-baselines3 learns from the environment's reward alone
+        return "reward only"
+    config = json.loads((shipped_log_dir(algo, scene) / "config.json").read_text(encoding="utf-8"))
+    taught = config.get("expert_relabel") or config.get("demo_episodes", 0) > 0 or config.get("polish_epochs", 0) > 0
+    return "full-knowledge planner's labels" if taught else "reward only"
+
+
 def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
-    """The project README's shipped-policies table: held-out rates, training steps and wall-clock minutes."""
+    """The project README's shipped-policies table: what each agent learnt from, held-out rates, training steps
+    and wall-clock minutes."""
     lines = [
-        "| scene | agent | training seeds | success | collision | timeout | left the deck / square |"
+        "| scene | agent | learnt from | training seeds | success | collision | timeout | left the deck / square |"
         " training steps (each seed) | training time (all seeds, under load) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
         runs = seeds_cell(r.get("seeds", []))
         lines.append(
-            f"| {scene} | {LABELS.get(algo, algo)} | {runs} | {100 * r['success']:.1f} % | "
+            f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {runs} | "
+            f"{100 * r['success']:.1f} % | "
             f"{100 * r['collision']:.1f} % | "
             f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "
             f"{r['train_wall_s'] / 60:.0f} min |"

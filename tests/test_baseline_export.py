@@ -174,8 +174,9 @@ def test_project_readme_table_matches_results_json():
     seen = set()
     for line in rows:
         cells = (c.strip() for c in line.strip("|").split("|"))
-        scene, label, runs, success, collision, timeout, off, steps, wall = cells
+        scene, label, learnt, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
+        assert learnt == ("reward only" if labels[label] in ("dqn", "a2c") else "full-knowledge planner's labels")
         assert runs == script.seeds_cell(record["seeds"]), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
