@@ -161,3 +161,37 @@ def test_dump_scene_reads_back_equal_with_overrides():
     specs.append(load_scene("deck1", movers__tractors=2))  # counts changed: no paper_counts any more
     for spec in specs:
         assert parse_scene(tomllib.loads(dump_scene(spec)), "dumped") == spec
+
+
+def test_a_scene_file_extends_another_and_replaces_only_what_it_sets(tmp_path):
+    from deck_sim.scenes import load_scene
+
+    deck1 = load_scene("deck1")
+    child = tmp_path / "busy.toml"
+    child.write_text('extends = "deck1"\nname = "busy"\n\n[movers]\ntractors = 6\n')
+    spec = load_scene(child)
+    assert spec.name == "busy" and spec.movers.tractors == 6
+    assert spec.movers.aircraft == deck1.movers.aircraft and spec.reward == deck1.reward and spec.agent == deck1.agent
+    grandchild = tmp_path / "busier.toml"
+    grandchild.write_text('extends = "busy.toml"\nname = "busier"\n\n[movers]\naircraft = 2\n')
+    spec = load_scene(grandchild)  # a path relative to the extending file
+    assert (spec.movers.tractors, spec.movers.aircraft) == (6, 2)
+    # deck 2 is deck 1 with more movers: every section but the movers' is deck 1's
+    deck2 = load_scene("deck2")
+    assert deck2.agent == deck1.agent and deck2.static == deck1.static and deck2.episode == deck1.episode
+
+
+def test_a_bad_extends_is_refused_with_the_file_named(tmp_path):
+    from deck_sim.scenes import SceneSpecError, load_scene
+
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    a.write_text('extends = "b.toml"\nname = "a"\n')
+    b.write_text('extends = "a.toml"\nname = "b"\n')
+    with pytest.raises(SceneSpecError, match=r"extend each other in a cycle \(a.toml -> b.toml -> a.toml\)"):
+        load_scene(a)
+    a.write_text('extends = "nowhere"\n')
+    with pytest.raises(SceneSpecError, match="unknown scene 'nowhere'"):
+        load_scene(a)
+    a.write_text("extends = 3\n")
+    with pytest.raises(SceneSpecError, match="a.toml: extends: expected a scene name"):
+        load_scene(a)

@@ -416,8 +416,51 @@ def scene_names() -> list[str]:
     return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
 
 
+def _scene_path(name_or_path: str | Path, relative_to: Path = SCENE_DIR) -> Path:
+    """The file of a shipped scene's name (``deck1``), or a ``.toml`` path (relative to ``relative_to``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml":
+        return path if path.is_absolute() or relative_to == SCENE_DIR else relative_to / path
+    if str(name_or_path) not in scene_names():
+        raise SceneSpecError(f"unknown scene {str(name_or_path)!r}; known scenes: {', '.join(scene_names())}")
+    return SCENE_DIR / f"{name_or_path}.toml"
+
+
+def _read_scene_file(path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+    """A scene file's TOML document with the scene it ``extends`` (a shipped name or a path relative to the file)
+    merged under it: the base's sections, each field replaced where the file sets it."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise SceneSpecError(f"scene file {path} does not exist") from err
+    except tomllib.TOMLDecodeError as err:
+        raise SceneSpecError(f"{path.name}: not valid TOML: {err}") from err
+    base_name = data.pop("extends", None)
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str) or not base_name:
+        raise SceneSpecError(f"{path.name}: extends: expected a scene name or a .toml path, got {base_name!r}")
+    base_path = _scene_path(base_name, relative_to=path.parent)
+    if base_path.resolve() in {p.resolve() for p in (*chain, path)}:
+        cycle = " -> ".join(p.name for p in (*chain, path, base_path))
+        raise SceneSpecError(f"{path.name}: extends: the scenes extend each other in a cycle ({cycle})")
+    merged = _read_scene_file(base_path, (*chain, path))
+    counts = {f"{section}__{name}" for section, fields in data.items() if isinstance(fields, dict) for name in fields}
+    if counts & _COUNT_FIELDS and "paper_counts" not in data:
+        merged.pop("paper_counts", None)  # the base's counts changed: not the paper's scene unless the file says so
+    for key, value in data.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        else:
+            merged[key] = value
+    return merged
+
+
 def load_scene(name_or_path: str | Path, **overrides: Any) -> SceneSpec:
     """Load a shipped scene by name (``deck1``) or any scene file by path, then apply ``overrides``.
+
+    A file may start from another scene: ``extends = "deck1"`` (a shipped name, or a ``.toml`` path relative to the
+    file) takes every section of that scene and replaces the fields the file sets.
 
     Overrides name a section and field with a double underscore, e.g. ``episode__predictor="oracle"`` or
     ``movers__tractors=0``; they are validated like the file's own fields.
@@ -425,19 +468,8 @@ def load_scene(name_or_path: str | Path, **overrides: Any) -> SceneSpec:
     Raises:
         SceneSpecError: unknown name, unreadable or malformed file, bad override.
     """
-    path = Path(name_or_path)
-    if path.suffix != ".toml":
-        if str(name_or_path) not in scene_names():
-            raise SceneSpecError(
-                f"unknown scene {str(name_or_path)!r}; known scenes: {', '.join(scene_names())}"
-            )
-        path = SCENE_DIR / f"{name_or_path}.toml"
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError as err:
-        raise SceneSpecError(f"scene file {path} does not exist") from err
-    except tomllib.TOMLDecodeError as err:
-        raise SceneSpecError(f"{path.name}: not valid TOML: {err}") from err
+    path = _scene_path(name_or_path)
+    data = _read_scene_file(path, ())
     for key, value in overrides.items():
         section, sep, name = key.partition("__")
         if not sep or section not in _SECTIONS:
