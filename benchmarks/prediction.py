@@ -392,7 +392,7 @@ def time_control_step(scene: str, seed: int, steps: int, batches: int = 5) -> tu
 
 def print_table(title: str, res: dict[str, Scores], timing: dict[str, tuple[float, float]]) -> None:
     """Print one scene's table: ADE, FDE, FDE/cv, per-phase FDE/cv and FDE, us per predict call (fastest/median)."""
-    base_ade, base_fde, phase = res["constant_velocity"].arrays()
+    _, base_fde, phase = res["constant_velocity"].arrays()
     counts = [int(np.count_nonzero(phase == i)) for i in range(len(PHASES))]
     print(title)
     print(

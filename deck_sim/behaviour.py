@@ -155,7 +155,6 @@ class MoverBehaviour:
         # agent (its parts turned to its heading, ``_agent_ahead``)
         # ahead: free distance + own half-length + the other's half-length; beside: both half-widths
         fronts = self.radii if self.fronts is None else np.asarray(self.fronts, dtype=float)
-        self._fronts = fronts
         rsum = self.radii[:, None] + self.radii[None, :]
         fsum = fronts[:, None] + fronts[None, :]
         self._yield_reach = self.params.yield_distance + fsum
@@ -180,7 +179,6 @@ class MoverBehaviour:
         brake_max = self._agent_brake_vmax**2 * self._agent_brake_gain
         near = np.hypot(self._agent_reach[:, 0] + brake_max + extent, self._agent_width[:, 0] + extent) + offset
         self._agent_near_sq = near * near
-        self._any_holonomic = bool(np.any(self.holonomic))
         # the hot path (``command``) works on plain Python floats: its tables as nested lists
         self._yield_reach_l = self._yield_reach.tolist()
         self._contact_reach_l = self._contact_reach.tolist()

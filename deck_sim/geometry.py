@@ -25,11 +25,6 @@ class NoPathError(RuntimeError):
     """No collision-free path exists between two points among the given obstacles."""
 
 
-def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles (radians) to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def rotation(yaw: np.ndarray) -> np.ndarray:
     """(k, 2, 2) rotation matrices for yaws (k,) in radians."""
     c, s = np.cos(yaw), np.sin(yaw)

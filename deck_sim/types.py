@@ -28,20 +28,6 @@ class ObstacleKind(IntEnum):
 
 
 @dataclass(frozen=True)
-class Pose2D:
-    """A planar pose: position in metres and heading (yaw about z, from +x towards +y) in radians."""
-
-    x: float
-    y: float
-    yaw: float
-
-    @property
-    def xy(self) -> np.ndarray:
-        """Position as a (2,) float64 array."""
-        return np.array([self.x, self.y], dtype=np.float64)
-
-
-@dataclass(frozen=True)
 class ObstacleTracks:
     """What a predictor may see of the dynamic obstacles at one control step.
 
