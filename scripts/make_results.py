@@ -28,8 +28,6 @@ import time  # noqa: E402
 from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from tqdm import tqdm  # noqa: E402
-
 from deck_sim.agents import LEARNED  # noqa: E402
 from deck_sim.evaluation import (  # noqa: E402
     EvalConfig,
@@ -43,6 +41,7 @@ from deck_sim.evaluation import (  # noqa: E402
     write_report,
 )
 from deck_sim.policies import TRAINED_DIR, shipped_log_dir  # noqa: E402
+from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
 from training.config import shipped_arm  # noqa: E402
 
@@ -170,7 +169,7 @@ def main() -> None:
         plan[scene] = tuple(a for a in agents if a not in missing[scene])
     commit = git_commit()
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    bar = tqdm(total=args.episodes * sum(len(a) for a in plan.values()), unit="ep", desc="results")
+    bar = progress(total=args.episodes * sum(len(a) for a in plan.values()), unit="ep", desc="results")
     parts = []
     with bar:
         for scene in scenes:
