@@ -29,9 +29,9 @@ virtual machine. Non-finite results fall back to constant velocity for that move
 ``fallback_count``).
 
 A control-law rollout rather than an optimal-control solve: the movers themselves follow a control law, and
-an IPOPT solve of a mover's optimal approach to its spot (``benchmarks/prediction_synthetic.py``,
-``OptimalControl``) predicted them slightly worse (it brakes later and harder than the movers do) at about
-7 ms per mover, some 500x the rollout's cost.
+an IPOPT solve of a mover's optimal approach to its spot (``OptimalControl`` in
+``benchmarks/prediction_synthetic.py``, which prints both methods' errors and the solve time per mover)
+predicts them slightly worse (it brakes later and harder than the movers do) at a far higher cost.
 
 Modules: ``mpc_settings`` (the settings), ``mpc_graph`` (the Function, in stages, with ``mpc_estimation``
 and ``mpc_rollout``), ``mpc_codegen`` (C generation and its cache); this module holds the runtime

@@ -45,7 +45,7 @@ class MoverModel:
 
 @dataclass(frozen=True)
 class MPCPredictorSettings:
-    """Everything the MPC predictor needs; frozen, hashed into the compiled artefact's cache key."""
+    """Everything the MPC predictor needs; frozen and hashable (one built Function per distinct value)."""
 
     horizon: int = 10
     """Number of predicted steps N, each ``dt`` seconds apart."""
@@ -170,7 +170,7 @@ class MPCPredictorSettings:
     compiler: str = "gcc"
     """C compiler executable."""
     compiler_flags: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
-    """Flags for the compiler (-O2 runs about 10% faster but compiles about 50% longer)."""
+    """Flags for the compiler (-O2 runs faster but compiles longer)."""
     cache_dir: str | None = None
     """Directory for compiled artefacts; None: ``default_cache_dir()`` (``$DECK_SIM_CACHE/casadi``, else
     ``$XDG_CACHE_HOME/deck_sim/casadi``, else ``~/.cache/deck_sim/casadi``). Artefacts are keyed by a hash of
