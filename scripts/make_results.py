@@ -43,16 +43,9 @@ from deck_sim.evaluation import (  # noqa: E402
 from deck_sim.policies import TRAINED_DIR, shipped_log_dir  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
-from training.config import shipped_arm  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = "mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted,scripted-body"
-RUN_FOLDERS = {
-    "mddpg": "{scene}-{mddpg}-seed0",
-    "ddpg": "{scene}-{ddpg}-seed0",
-    "dqn": "{scene}-dqn-seed0",
-    "a2c": "{scene}-a2c-seed0",
-}
 
 
 def training_figures(scene: str, agent: str) -> dict | None:
@@ -197,9 +190,8 @@ def main() -> None:
     for scene in scenes:
         runs = {}
         for agent in agents:
-            if agent in RUN_FOLDERS:
-                recipes = {a: shipped_arm(scene, a).recipe for a in ("mddpg", "ddpg")}
-                run = Path(args.runs) / RUN_FOLDERS[agent].format(scene=scene, **recipes)
+            if agent in LEARNED:
+                run = Path(args.runs) / f"{scene}-{agent}-seed0"  # scripts/train_shipped.py's run folder
                 # the log shipped with the actor (the run folder may hold a newer, unshipped run), else the run's
                 for folder in (shipped_log_dir(agent, scene), run):
                     if (folder / "eval.csv").exists():

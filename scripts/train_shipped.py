@@ -2,21 +2,18 @@
 
 For each scene and agent (``--algos``, default all four learned agents of the paper):
 
-- ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the scene's recipe in
-  ``training.config.SHIPPED_RECIPES`` (``arm_config(recipe, ...)``; on the decks
-  ``tuned-<algo>-with-data+polish+size+sets``, 160,000 steps) per seed of the recipe's
-  ``seeds`` (or ``--seeds``), each in ``--out/<scene>-<recipe>-seed<seed>`` (the folder ``benchmarks/learning.py``
-  writes for that arm, so seeds trained there in parallel are found finished). DDPG is MDDPG without prediction
-  (predictor ``none``), same recipe, seeds and budget. With several seeds the shipped file is an ensemble
-  (``deck_sim.policies.EnsemblePolicy``): the seeds' actors acting by the mean of their actions.
-- ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` in
-  ``--out/<scene>-<algo>-seed<seed>``, held-out evaluation every 10,000 steps on 50 episodes; the networks are
-  exported to numpy (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor
-  ``training``.
+- ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the ``[ddpg]`` table of the scene's recipe,
+  ``training/recipes/<scene>.toml`` (``training.recipes``), per seed of the recipe's ``seeds`` (or ``--seeds``),
+  each in ``--out/<scene>-<algo>-seed<seed>``: the run ``deck-sim train --recipe <scene> --algo <algo> --seed
+  <seed>`` makes. DDPG is MDDPG without prediction (predictor ``none``), same recipe, seeds and budget. With
+  several seeds the shipped file is an ensemble (``deck_sim.policies.EnsemblePolicy``): the seeds' actors acting
+  by the mean of their actions.
+- ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
+  ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
+  (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
 
-MDDPG and DDPG of a scene train for the same number of environment steps (``SHIPPED_RECIPES``); DQN and A2C
-for ``SB3_STEPS[scene]`` (40,000 steps on deck 1 and the square, 60,000 on deck 2). ``--steps`` sets one budget
-for every agent.
+MDDPG and DDPG of a scene train for the same number of environment steps; DQN and A2C for the recipe's
+``[sb3]`` steps. ``--steps`` sets one budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 shipped actor of each run (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the
@@ -75,13 +72,10 @@ from deck_sim.policies import (  # noqa: E402
     shipped_log_dir,
 )
 from deck_sim.rollout import run_episode  # noqa: E402
-from training.config import shipped_arm  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
+from training.recipes import load_recipe  # noqa: E402
 
 HELD_OUT_SEED = 1000
-SB3_STEPS = {"deck1": 40_000, "deck2": 60_000, "square": 40_000}
-"""Training steps of the shipped DQN and A2C agents of a scene (MDDPG and DDPG: ``SHIPPED_RECIPES``)."""
-SB3_EVAL_EVERY, SB3_EVAL_EPISODES = 10_000, 50
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
 PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
 README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.py) -->", "<!-- shipped-table: end -->")
@@ -150,41 +144,46 @@ def ship(runs: list[Path], dest: Path) -> None:
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
     """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives."""
-    if algo in ("mddpg", "ddpg"):
-        return out / f"{scene}-{shipped_arm(scene, algo).recipe}-seed{seed}"  # benchmarks/learning.py's folder
     return out / f"{scene}-{algo}-seed{seed}"
 
 
 def default_steps(scene: str, algo: str) -> int:
-    return shipped_arm(scene, algo).steps if algo in ("mddpg", "ddpg") else SB3_STEPS.get(scene, 60_000)
+    """Environment steps of one run of the scene's recipe for ``algo``."""
+    return load_recipe(scene).steps(algo)
 
 
 def default_seeds(scene: str, algo: str) -> tuple[int, ...]:
-    """The training seeds behind the shipped ``algo`` of ``scene``: ``SHIPPED_RECIPES``'s, one (0) for SB3."""
-    return shipped_arm(scene, algo).seeds if algo in ("mddpg", "ddpg") else (0,)
+    """The training seeds behind the shipped ``algo`` of ``scene``: its recipe's."""
+    return load_recipe(scene).seeds(algo)
+
+
+def run_config(scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> Any:
+    """What one run of the shipped ``algo`` of ``scene`` trains with: the recipe's ``TrainConfig`` (MDDPG, DDPG;
+    ``deck-sim train --recipe <scene> --algo <algo> --seed <seed> --print-config`` prints the same) or the keyword
+    arguments of ``train_baseline`` (DQN, A2C), ``steps`` and ``fields`` applied."""
+    recipe = load_recipe(scene)
+    if algo in ("mddpg", "ddpg"):
+        return recipe.config(algo, seed, **{**fields, "total_steps": steps})
+    return {"algo": algo, "scene": scene, "seed": seed, **recipe.baseline_kwargs(algo), "steps": steps}
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
     """Train (or resume) the run unless it has finished (a final ``actor.npz``)."""
     if (run / "actor.npz").exists():
         return
+    plan = run_config(scene, algo, steps, seed, fields)
     if algo in ("mddpg", "ddpg"):
-        from training.config import TrainConfig, arm_config
         from training.loop import Trainer
 
-        arm = shipped_arm(scene, algo)
-        base = arm_config(arm.recipe, scene, steps, seed, eval_every=arm.eval_every, eval_episodes=arm.eval_episodes)
-        cfg = TrainConfig.from_dict({**base.to_dict(), **fields})
         resume = (run / "checkpoint.pt").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
-        Trainer(cfg, run, resume=resume, progress=False).train()
+        Trainer(plan, run, resume=resume, progress=False).train()
     else:
         from training.baselines import train_baseline
 
         resume = (run / "model.zip").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
-        train_baseline(algo, scene, steps, seed, run, resume=resume, progress=False, eval_every=SB3_EVAL_EVERY,
-                       eval_episodes=SB3_EVAL_EPISODES)
+        train_baseline(**plan, out=run, resume=resume, progress=False)
 
 
 @contextlib.contextmanager
@@ -236,10 +235,10 @@ def main() -> None:
     parser.add_argument("--scenes", default="deck1,deck2,square")
     parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
     parser.add_argument("--steps", type=int, default=None,
-                        help="training steps for every agent (default: SHIPPED_RECIPES, SB3_STEPS)")
+                        help="training steps for every agent (default: the scene's recipe)")
     parser.add_argument("--seeds", default=None,
-                        help="training seeds, comma-separated (default: SHIPPED_RECIPES's for MDDPG and DDPG, 0 for "
-                             "DQN and A2C); several seeds ship the mean action of their actors (MDDPG and DDPG only)")
+                        help="training seeds, comma-separated (default: the scene's recipe); several seeds ship "
+                             "the mean action of their actors (MDDPG and DDPG only)")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
     mode = parser.add_mutually_exclusive_group()
@@ -325,7 +324,7 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
-            "recipe": shipped_arm(scene, algo).recipe if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
+            "recipe": f"training/recipes/{scene}.toml" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
@@ -363,7 +362,7 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "",
         "Weights-only actors (`deck_sim.policies.LearnedPolicy`, numpy alone; `load_actor` reads them), written by",
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
-        "`training.loop.Trainer` runs of the recipe in the table (`training.config.SHIPPED_RECIPES`; DDPG: the same",
+        "`training.loop.Trainer` runs of the recipe in the table (`training/recipes/<scene>.toml`; DDPG: the same",
         "agent, recipe, seeds and budget without the MPC prediction), one run per training seed; with several seeds",
         "the file holds each run's actor and acts by the mean of their actions (`deck_sim.policies.EnsemblePolicy`).",
         "DQN and A2C are stable-baselines3 runs",

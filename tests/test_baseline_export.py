@@ -214,7 +214,8 @@ def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_pat
     assert script.write_project_table(report, readme)
     once = readme.read_text(encoding="utf-8")
     assert once.startswith(f"intro\n{start}\n| scene | agent |") and once.endswith(f"{end}\noutro\n")
-    assert "| deck2 | MDDPG | 2 (seeds 0, 1; mean action) | 90.5 % | 9.0 % | 0.5 % | 0.0 % | 320,000 | 51 min |" in once
+    assert ("| deck2 | MDDPG | full-knowledge planner's labels | 2 (seeds 0, 1; mean action) | 90.5 % | 9.0 % | "
+            "0.5 % | 0.0 % | 320,000 | 51 min |") in once
     assert "old" not in once
     assert script.write_project_table(report, readme) and readme.read_text(encoding="utf-8") == once  # idempotent
     assert not (tmp_path / "README.md.tmp").exists()
@@ -223,27 +224,6 @@ def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_pat
         assert not script.write_project_table(report, readme)
         assert readme.read_text(encoding="utf-8") == broken  # left alone, and said so
         assert "was not updated" in capsys.readouterr().out
-
-
-@pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
-def test_shipped_mddpg_and_ddpg_are_runs_of_the_recipe_named_for_them(scene):
-    """``training.config.SHIPPED_RECIPES`` says how the shipped MDDPG and DDPG actors were trained: its recipe and
-    steps must be the shipped files' own (changing the recipe means training and shipping again)."""
-    from deck_sim.policies import shipped_policy_path
-    from training.config import shipped_arm
-
-    for algo in ("mddpg", "ddpg"):
-        record = _shipped_agents()[scene][algo]
-        arm = shipped_arm(scene, algo)
-        policy = load_actor(shipped_policy_path(algo, scene))
-        members = policy.members if isinstance(policy, EnsemblePolicy) else [policy]
-        assert tuple(record["seeds"]) == arm.seeds == tuple(m.meta["config"]["seed"] for m in members), (scene, algo)
-        for meta in (m.meta for m in members):  # every run behind the file is a run of the recipe
-            assert record["recipe"] == arm.recipe == meta["config"]["extra"]["recipe"], (scene, algo)
-            assert (meta["config"]["eval_every"], meta["config"]["eval_episodes"]) == (arm.eval_every,
-                                                                                       arm.eval_episodes)
-            assert record["train_steps"] == arm.steps == int(meta["config"]["total_steps"]), (scene, algo)
-            assert meta["polished"], (scene, algo)  # each run's final, fitted actor (training.loop.shipped_actor)
 
 
 def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeypatch):

@@ -7,8 +7,10 @@ group; training needs the ``train`` extra (torch, stable-baselines3, TensorBoard
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from deck_sim import agents
 from deck_sim.cli._common import add_command, parse_assignments
@@ -31,44 +33,28 @@ def cmd_train(args: argparse.Namespace) -> int:
     from training.config import ConfigError
     from training.loop import CheckpointError
 
-    out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{Path(args.scene).stem}-seed{args.seed}"
     try:
-        if args.algo in ("dqn", "a2c"):
+        out, config, baseline = _plan_run(args)
+        if args.print_config:
+            shown = config.to_dict() if config is not None else baseline
+            print(json.dumps(shown, indent=2, sort_keys=True))
+            return 0
+        if config is not None:
+            from training.loop import Trainer
+
+            summary = Trainer(config, out, resume=args.resume, progress=not args.quiet).train()
+        else:
             from training.baselines import train_baseline
 
-            summary = train_baseline(args.algo, args.scene, args.steps, args.seed, out, resume=args.resume,
-                                     progress=not args.quiet, **parse_assignments(args.set))
-        else:
-            from training.config import TrainConfig, make_config
-            from training.loop import Trainer, config_from_checkpoint
-
-            if args.resume:
-                from training.loop import RESUMABLE_CHANGES
-
-                config = config_from_checkpoint(out)
-                if args.steps is not None:
-                    config.total_steps = int(args.steps)
-                changes = parse_assignments(args.set)
-                fixed = sorted(set(changes) - set(RESUMABLE_CHANGES))
-                if fixed:
-                    raise ConfigError(
-                        f"--resume keeps the run's config; --set may change only {', '.join(RESUMABLE_CHANGES)}, "
-                        f"not {', '.join(fixed)}"
-                    )
-                config = TrainConfig.from_dict({**config.to_dict(), **changes})
-            else:
-                fields = {"algo": args.algo, "scene": args.scene, "seed": args.seed, **parse_assignments(args.set)}
-                if args.steps is not None:
-                    fields["total_steps"] = args.steps
-                config = make_config(args.preset, **fields)
-            summary = Trainer(config, out, resume=args.resume, progress=not args.quiet).train()
+            summary = train_baseline(**baseline, out=out, resume=args.resume, progress=not args.quiet)
     except (ConfigError, CheckpointError) as err:
         print(f"deck-sim train: error: {err}", file=sys.stderr)
         return 2
     ev = summary.get("eval") or {}
+    scene = config.scene if config is not None else baseline["scene"]
     if ev:
         print(
-            f"{args.algo} on {args.scene}: {summary['step']} steps in {summary['wall_s']:.0f} s; held-out "
+            f"{args.algo} on {scene}: {summary['step']} steps in {summary['wall_s']:.0f} s; held-out "
             f"success {100 * ev['goal_rate']:.1f} %, collision {100 * ev['collision_rate']:.1f} %, "
             f"timeout {100 * ev['timeout_rate']:.1f} %, mean reward {ev['mean_reward']:.1f}"
         )
@@ -99,6 +85,48 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | None]:
+    """The run folder and what to train there: a ``TrainConfig`` (MDDPG, DDPG) or the keyword arguments of
+    ``train_baseline`` (DQN, A2C), from ``--recipe`` or ``--scene``/``--preset``, then ``--steps`` and ``--set``."""
+    from training.config import ConfigError, TrainConfig, make_config
+
+    recipe = None
+    if args.recipe is not None:
+        from training.recipes import load_recipe
+
+        clash = [flag for flag, value in (("--scene", args.scene), ("--preset", args.preset)) if value is not None]
+        if clash:
+            raise ConfigError(f"--recipe {args.recipe} sets the scene and the preset; drop {' and '.join(clash)}")
+        recipe = load_recipe(args.recipe)
+    scene = recipe.scene if recipe is not None else args.scene or "deck1"
+    label = recipe.name if recipe is not None else Path(scene).stem
+    out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{label}-seed{args.seed}"
+    changes = parse_assignments(args.set)
+    if agents.AGENTS[args.algo].trainer == "sb3":
+        baseline = recipe.baseline_kwargs(args.algo) if recipe is not None else {"steps": None}
+        if args.steps is not None:
+            baseline["steps"] = args.steps
+        return out, None, {"algo": args.algo, "scene": scene, "seed": args.seed, **baseline, **changes}
+    if args.resume:
+        from training.loop import RESUMABLE_CHANGES, config_from_checkpoint
+
+        config = config_from_checkpoint(out)
+        if args.steps is not None:
+            config.total_steps = int(args.steps)
+        fixed = sorted(set(changes) - set(RESUMABLE_CHANGES))
+        if fixed:
+            raise ConfigError(
+                f"--resume keeps the run's config; --set may change only {', '.join(RESUMABLE_CHANGES)}, "
+                f"not {', '.join(fixed)}"
+            )
+        return out, TrainConfig.from_dict({**config.to_dict(), **changes}), None
+    if args.steps is not None:
+        changes["total_steps"] = args.steps
+    if recipe is not None:
+        return out, recipe.config(args.algo, args.seed, **changes), None
+    return out, make_config(args.preset or "tuned", algo=args.algo, scene=scene, seed=args.seed, **changes), None
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``train`` and ``ensemble`` to ``deck-sim``'s subcommands."""
     p = add_command(
@@ -107,15 +135,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the actor (actor.npz, actor_best.npz). Ctrl-C stops at a checkpoint; --resume continues exactly.",
     )
     p.add_argument("--algo", default="mddpg", choices=agents.LEARNED, help="the agent to train")
-    p.add_argument("--scene", default="deck1", help="scene name or TOML path")
-    p.add_argument("--steps", type=int, default=None, help="environment steps (default: the preset's)")
+    p.add_argument("--recipe", default=None,
+                   help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained) or a recipe "
+                        "TOML file; it sets the scene, the preset and every field the recipe names")
+    p.add_argument("--scene", default=None, help="scene name or TOML path (default: deck1, or the recipe's)")
+    p.add_argument("--steps", type=int, default=None, help="environment steps (default: the recipe's or preset's)")
     p.add_argument("--seed", type=int, default=0, help="seeds the networks, noise and training episodes")
-    p.add_argument("--preset", default="tuned", help="tuned (the switches that pay) or paper (plain DDPG)")
+    p.add_argument("--preset", default=None,
+                   help="tuned (the switches that pay) or paper (plain DDPG); default tuned, or the recipe's")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a TrainConfig field, e.g. --set twin_critics=false --set hidden=[128,128]")
     p.add_argument("--out", default=None, help="run folder (default: runs/train-<algo>-<scene>-seed<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress report")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the run's full configuration as JSON and exit without training")
 
     p = add_command(sub, "ensemble", cmd_ensemble, "join actor files into one policy that acts by their mean action")
     p.add_argument("actors", nargs="+", help="actor .npz files (deck-sim train's actor.npz; an ensemble file adds its "

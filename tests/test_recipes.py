@@ -1,0 +1,100 @@
+"""Recipes as data: the shipped agents are runs of their recipe file, ``deck-sim train --recipe`` and
+``scripts/train_shipped.py`` build the same configuration from it, and a bad recipe is refused by name."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from deck_sim.cli import main
+from deck_sim.policies import EnsemblePolicy, load_actor, shipped_policy_path
+from training.config import ConfigError, TrainConfig
+from training.recipes import load_recipe, recipe_names
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ("deck1", "deck2", "square")
+
+
+def _train_shipped():
+    spec = importlib.util.spec_from_file_location("train_shipped", ROOT / "scripts" / "train_shipped.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _without_notes(config: dict) -> dict:
+    """A config as JSON, less the free-form ``extra`` notes (not read by the trainer)."""
+    return {k: v for k, v in json.loads(json.dumps(config)).items() if k != "extra"}
+
+
+def test_every_shipped_scene_has_a_recipe():
+    assert recipe_names() == list(SCENES)
+    for scene in SCENES:
+        assert load_recipe(scene).scene == scene
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_the_shipped_mddpg_and_ddpg_are_runs_of_their_recipe(scene):
+    """Every actor behind a shipped file was trained with exactly its recipe's config (fields the trainer gained
+    after a run was made read as their defaults): changing a recipe means training and shipping again."""
+    recipe = load_recipe(scene)
+    defaults = TrainConfig().to_dict()
+    for algo in ("mddpg", "ddpg"):
+        policy = load_actor(shipped_policy_path(algo, scene))
+        members = policy.members if isinstance(policy, EnsemblePolicy) else [policy]
+        assert tuple(m.meta["config"]["seed"] for m in members) == recipe.seeds(algo) == (0, 1), (scene, algo)
+        for member in members:
+            shipped = member.meta["config"]
+            expected = _without_notes(recipe.config(algo, shipped["seed"]).to_dict())
+            stored = {**_without_notes(defaults), **_without_notes(shipped)}
+            assert stored == expected, (scene, algo, {k for k in expected if stored.get(k) != expected[k]})
+            assert member.meta["polished"]  # each run's final, fitted actor (training.loop.shipped_actor)
+        assert recipe.steps(algo) == 160_000
+
+
+@pytest.mark.parametrize(("scene", "algo", "seed"), [("deck1", "mddpg", 1), ("deck2", "ddpg", 0), ("square", "dqn", 0)])
+def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
+    assert main(["train", "--recipe", scene, "--algo", algo, "--seed", str(seed), "--print-config"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    script = _train_shipped()
+    planned = script.run_config(scene, algo, script.default_steps(scene, algo), seed, {})
+    if isinstance(planned, TrainConfig):
+        assert printed == json.loads(json.dumps(planned.to_dict()))
+        assert printed["extra"]["recipe"] == scene
+    else:
+        assert printed == planned and printed["steps"] == load_recipe(scene).steps(algo)
+
+
+def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(capsys):
+    args = ["train", "--recipe", "deck1", "--algo", "ddpg", "--steps", "5000", "--set", "batch_size=64",
+            "--print-config"]
+    assert main(args) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert (printed["total_steps"], printed["batch_size"], printed["teacher_body"]) == (5000, 64, True)
+    for clash in (["--scene", "deck2"], ["--preset", "paper"]):
+        assert main(["train", "--recipe", "deck1", *clash, "--print-config"]) == 2
+        assert f"drop {clash[0]}" in capsys.readouterr().err
+    assert main(["train", "--recipe", "nowhere", "--print-config"]) == 2
+    assert "unknown recipe 'nowhere'; known recipes: deck1, deck2, square" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n', "missing field\\(s\\) steps, eval_every, eval_episodes"),
+        ('scene = "deck1"\nteam = 3\n', "unknown key\\(s\\) team"),
+        ('[ddpg]\ntotal_steps = 10\n', "scene: expected a scene name"),
+        ('scene = "deck1"\n[ddpg]\nseeds = [0, 0]\n', "\\[ddpg\\] seeds: each seed once"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\nwings = 2\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\n',
+         "unknown training config field\\(s\\): wings"),
+        ("scene = \n", "not valid TOML"),
+    ],
+)
+def test_a_bad_recipe_file_is_refused_naming_the_problem(tmp_path, text, message):
+    path = tmp_path / "mine.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_recipe(path)

@@ -1,0 +1,124 @@
+"""Training recipes as data: one TOML file per shipped recipe (``deck1.toml``, ``deck2.toml``, ``square.toml``).
+
+A recipe names its scene and two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of ``training.config.PRESETS``,
+the training seeds, and any ``TrainConfig`` fields over the preset) and ``[sb3]`` for the DQN and A2C baselines
+(seeds, steps and evaluation cadence). ``deck-sim train --recipe deck1 --algo mddpg --seed 0`` trains one seed;
+``scripts/train_shipped.py`` trains every seed of every agent and ships the result.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from deck_sim import agents
+from training.config import ConfigError, TrainConfig, make_config
+
+RECIPE_DIR = Path(__file__).resolve().parent
+BASELINE_FIELDS = ("steps", "eval_every", "eval_episodes")
+"""The ``[sb3]`` fields passed to ``training.baselines.train_baseline``."""
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """One recipe file, parsed.
+
+    Attributes:
+        name: The file's stem (``deck1``).
+        scene: The scene it trains on.
+        preset: The ``TrainConfig`` preset MDDPG and DDPG start from.
+        ddpg_seeds: Training seeds of MDDPG and DDPG; the shipped file acts by the mean of their actors.
+        ddpg_fields: ``TrainConfig`` fields over the preset.
+        sb3_seeds: Training seeds of DQN and A2C.
+        sb3_fields: ``steps``, ``eval_every`` and ``eval_episodes`` of DQN and A2C.
+    """
+
+    name: str
+    scene: str
+    preset: str
+    ddpg_seeds: tuple[int, ...]
+    ddpg_fields: dict[str, Any] = field(default_factory=dict)
+    sb3_seeds: tuple[int, ...] = (0,)
+    sb3_fields: dict[str, Any] = field(default_factory=dict)
+
+    def seeds(self, algo: str) -> tuple[int, ...]:
+        """The training seeds of ``algo`` in this recipe."""
+        return self.ddpg_seeds if _trainer(algo) == "ddpg" else self.sb3_seeds
+
+    def steps(self, algo: str) -> int:
+        """Environment steps of one run of ``algo``."""
+        return int(self.ddpg_fields["total_steps"] if _trainer(algo) == "ddpg" else self.sb3_fields["steps"])
+
+    def config(self, algo: str, seed: int, **overrides: Any) -> TrainConfig:
+        """The validated ``TrainConfig`` of one MDDPG or DDPG run of this recipe, ``overrides`` applied last."""
+        if _trainer(algo) != "ddpg":
+            raise ConfigError(f"recipe {self.name}: {algo} is a stable-baselines3 agent; use baseline_kwargs")
+        fields = {**self.ddpg_fields, **overrides}
+        fields["extra"] = {**fields.get("extra", {}), "recipe": self.name}
+        return make_config(self.preset, algo=algo, scene=self.scene, seed=seed, **fields)
+
+    def baseline_kwargs(self, algo: str) -> dict[str, Any]:
+        """Keyword arguments of ``training.baselines.train_baseline`` for a DQN or A2C run of this recipe."""
+        if _trainer(algo) != "sb3":
+            raise ConfigError(f"recipe {self.name}: {algo} trains with training.ddpg; use config")
+        return dict(self.sb3_fields)
+
+
+def _trainer(algo: str) -> str:
+    if algo not in agents.LEARNED:
+        raise ConfigError(f"algo: expected one of {', '.join(agents.LEARNED)}, got {algo!r}")
+    return agents.AGENTS[algo].trainer
+
+
+def recipe_names() -> list[str]:
+    """The recipes shipped with the package."""
+    return sorted(p.stem for p in RECIPE_DIR.glob("*.toml"))
+
+
+def load_recipe(name_or_path: str | Path) -> Recipe:
+    """A shipped recipe by name (``deck1``) or a recipe file by path; ``ConfigError`` naming the problem."""
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        if str(name_or_path) not in recipe_names():
+            raise ConfigError(f"unknown recipe {str(name_or_path)!r}; known recipes: {', '.join(recipe_names())}")
+        path = RECIPE_DIR / f"{name_or_path}.toml"
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"recipe file {path} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path.name}: not valid TOML: {err}") from None
+    unknown = sorted(set(data) - {"scene", "ddpg", "sb3"})
+    if unknown:
+        raise ConfigError(f"{path.name}: unknown key(s) {', '.join(unknown)}; expected scene, [ddpg] and [sb3]")
+    if not isinstance(data.get("scene"), str):
+        raise ConfigError(f"{path.name}: scene: expected a scene name, got {data.get('scene')!r}")
+    ddpg = dict(data.get("ddpg", {}))
+    sb3 = dict(data.get("sb3", {}))
+    recipe = Recipe(
+        name=path.stem,
+        scene=data["scene"],
+        preset=str(ddpg.pop("preset", "tuned")),
+        ddpg_seeds=_seeds(ddpg.pop("seeds", [0]), f"{path.name} [ddpg] seeds"),
+        ddpg_fields=ddpg,
+        sb3_seeds=_seeds(sb3.pop("seeds", [0]), f"{path.name} [sb3] seeds"),
+        sb3_fields=sb3,
+    )
+    missing = [k for k in ("total_steps",) if k not in ddpg] + [k for k in BASELINE_FIELDS if k not in sb3]
+    if missing:
+        raise ConfigError(f"{path.name}: missing field(s) {', '.join(missing)}")
+    extra = sorted(set(sb3) - set(BASELINE_FIELDS))
+    if extra:
+        raise ConfigError(f"{path.name} [sb3]: unknown field(s) {', '.join(extra)}; expected {BASELINE_FIELDS}")
+    recipe.config("mddpg", recipe.ddpg_seeds[0])  # every [ddpg] field is checked now, not at training time
+    return recipe
+
+
+def _seeds(value: Any, where: str) -> tuple[int, ...]:
+    if not isinstance(value, list) or not value or not all(isinstance(s, int) and s >= 0 for s in value):
+        raise ConfigError(f"{where}: expected a non-empty list of seeds >= 0, got {value!r}")
+    if len(set(value)) < len(value):
+        raise ConfigError(f"{where}: each seed once, got {value!r}")
+    return tuple(value)
