@@ -267,7 +267,7 @@ def test_the_physics_shortcuts_change_nothing(monkeypatch, undo):
     substeps (computed only where read: the contact sensor at every collision check, all of them at the end of
     the control step) and the collision midphase. Each is undone in turn and an episode of the agent driving into
     a parked aircraft among two movers is compared step by step."""
-    import deck_sim.tasks.navigate as navigate
+    import deck_sim.tasks.physics_step as physics_step
 
     def run(undo: str | None) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
         env = deck_sim.load("deck1", seed=3, movers__tractors=2, movers__aircraft=0)
@@ -294,7 +294,7 @@ def test_the_physics_shortcuts_change_nothing(monkeypatch, undo):
 
     fast = run(None)
     if undo == "sensors":
-        monkeypatch.setattr(navigate, "_NO_SENSORS", 0)  # every substep computes its sensors
+        monkeypatch.setattr(physics_step, "_NO_SENSORS", 0)  # every substep computes its sensors
     plain = run(undo)
     assert plain[2][-1] is not None and plain[2][-1].startswith("parked_aircraft")
     assert np.array_equal(fast[0], plain[0])

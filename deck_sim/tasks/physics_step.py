@@ -1,0 +1,231 @@
+"""The physics of one control step: fused ``mj_step`` substeps, contact checks, divergence, surface and clearances.
+
+composer sees a single substep per control step (its per-substep Python would otherwise cost a few times the
+physics; ``benchmarks/step_speed.py`` measures the step against raw ``mj_step``). ``FusedStepper.substeps`` runs
+all the others as ``mj_step(nstep)`` calls, split ``episode.collision_checks`` times to look for contacts
+between the agent and the obstacles; composer runs the last one.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+from dm_control import mjcf
+
+from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor
+from deck_sim.geometry import Footprints
+
+if TYPE_CHECKING:
+    from deck_sim.entities.arenas import _SiteArena
+
+_DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+)
+
+_NO_SENSORS = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+"""The disable flag that skips sensor computation on the fused substeps between contact checks."""
+
+
+class FusedStepper:
+    """The compiled model's index tables for stepping and reading the vehicles, and the contact bookkeeping.
+
+    Args:
+        physics: the compiled physics.
+        arena: the arena (its fixed obstacles' geoms and its surface).
+        agent: the agent's entity.
+        movers: the movers' entities.
+        statics: the static obstacles' entities.
+        contact_sensor: the agent's contact sensor (how many contacts its own body has).
+        n_substeps: physics steps per control step.
+        collision_checks: contact checks per control step.
+    """
+
+    def __init__(
+        self,
+        physics: mjcf.Physics,
+        arena: _SiteArena,
+        agent: Aircraft | Pedestrian,
+        movers: list[Tractor | Aircraft | Pedestrian],
+        statics: list[StaticProp],
+        contact_sensor: mjcf.Element,
+        n_substeps: int,
+        collision_checks: int,
+    ) -> None:
+        m = physics.model
+        self._m, self._d = m.ptr, physics.data.ptr
+        self._arena = arena
+        vehicles = [agent, *movers]
+        self.body_ids = np.array([physics.bind(v.root_body).element_id for v in vehicles])
+        """Body ids of the agent (first) and every mover."""
+        # planar velocity dofs: free joints' linear x, y; pedestrians' slide joints
+        vel_dofs = []
+        for v in vehicles:
+            if isinstance(v, Pedestrian):
+                vel_dofs.append([int(physics.bind(j).dofadr) for j in v.joints])
+            else:
+                fj = mjcf.get_frame_freejoint(v.mjcf_model)
+                adr = int(physics.bind(fj).dofadr)
+                vel_dofs.append([adr, adr + 1])
+        self._vel_dofs = np.array(vel_dofs, dtype=int)
+        self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
+        self._any_ped = bool(self._is_ped.any())
+        # contact bookkeeping: which geoms are the agent's, which obstacle owns every other geom
+        self.obstacle_names = [p.mjcf_model.model for p in statics]
+        """Names of the obstacles: the static ones (the arena's own last), then the movers."""
+        self.obstacle_names += [g.name for g in arena.fixed_obstacle_geoms]
+        self.obstacle_names += [mv.mjcf_model.model for mv in movers]
+        owner = np.full(m.ngeom, -1, dtype=int)
+        k = 0
+        for p in statics:
+            owner[[physics.bind(g).element_id for g in p.mjcf_model.find_all("geom")]] = k
+            k += 1
+        for g in arena.fixed_obstacle_geoms:
+            owner[physics.bind(g).element_id] = k
+            k += 1
+        for mv in movers:
+            owner[[physics.bind(g).element_id for g in mv.mjcf_model.find_all("geom")]] = k
+            k += 1
+        self._geom_owner = owner
+        self._agent_geom = np.zeros(m.ngeom, dtype=bool)
+        self._agent_geom[[physics.bind(g).element_id for g in agent.mjcf_model.find_all("geom")]] = True
+        self._contact_adr = int(physics.bind(contact_sensor).adr)
+        self._warning_ids = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
+        # the fused substeps (all but composer's last one), split for contact checks
+        n_fused = n_substeps - 1
+        edges = np.linspace(0, n_fused, collision_checks + 1).round().astype(int)
+        self._chunks = [int(c) for c in np.diff(edges) if c > 0]
+        self.collided_with: str | None = None
+        """The first obstacle the agent touched in the current control step, or None."""
+        self._warnings_before = 0
+
+    def read_state(self) -> dict[str, np.ndarray]:
+        """Planar pose and velocity of the agent (row 0) and every mover: ``xy`` (k, 2) metres, ``yaw`` (k,)
+        radians, ``vel`` (k, 2) m/s and ``forward_speed`` (k,) m/s; fresh arrays."""
+        d = self._d
+        xy = d.xpos[self.body_ids, :2]  # (fancy indexing copies)
+        xmat = d.xmat[self.body_ids]
+        yaw = np.arctan2(xmat[:, 3], xmat[:, 0])
+        vel = d.qvel[self._vel_dofs]
+        fwd = vel[:, 0] * np.cos(yaw) + vel[:, 1] * np.sin(yaw)
+        # pedestrians have no body heading: their speed is the norm of their velocity
+        if self._any_ped:
+            fwd[self._is_ped] = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
+        return {"xy": xy, "yaw": yaw, "vel": vel, "forward_speed": fwd}
+
+    def start_episode(self) -> None:
+        """Forget the last contact and take MuJoCo's warning counts as they are now."""
+        self.collided_with = None
+        self._warnings_before = sum(self._d.warning.number[self._warning_ids].tolist())
+
+    def substeps(self) -> None:
+        """Run the fused substeps (all but composer's last one), checking contacts after every chunk."""
+        d = self._d
+        self._warnings_before = sum(d.warning.number[self._warning_ids].tolist())  # compared in ``diverged``
+        self.collided_with = None
+        # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
+        # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
+        # run mj_rnePostConstraint every step) leaves the trajectory and every value read bit-identical.
+        opt = self._m.opt
+        flags = opt.disableflags
+        for c in self._chunks:
+            if c > 1:
+                opt.disableflags = flags | _NO_SENSORS
+                try:
+                    mujoco.mj_step(self._m, d, nstep=c - 1)
+                finally:
+                    opt.disableflags = flags
+            mujoco.mj_step(self._m, d, nstep=1)
+            self.check_contacts()
+
+    def check_contacts(self) -> None:
+        """Record the first obstacle the agent touches (contacts between bodies only; wheels touch the deck)."""
+        d = self._d
+        if self.collided_with is not None or d.sensordata[self._contact_adr] == 0.0:
+            return
+        geom = d.contact.geom[: d.ncon]
+        a0, a1 = self._agent_geom[geom[:, 0]], self._agent_geom[geom[:, 1]]
+        other = np.where(a0, geom[:, 1], geom[:, 0])[a0 ^ a1]
+        owners = self._geom_owner[other]
+        owners = owners[owners >= 0]
+        if len(owners):
+            self.collided_with = self.obstacle_names[int(owners[0])]
+
+    def diverged(self) -> bool:
+        """Whether the physics diverged over the control step, composer's substep included: MuJoCo warned (and
+        reset the state) after ``substeps`` began, or a position is not finite."""
+        d = self._d
+        warnings = sum(d.warning.number[self._warning_ids].tolist())
+        return warnings > self._warnings_before or not np.isfinite(d.qpos).all()
+
+    def surface(self, xy: np.ndarray) -> tuple[bool, np.ndarray]:
+        """Whether the agent is on the surface, and which movers (n,) are lost: off the surface or fallen below
+        it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``."""
+        on_surface = self._arena.on_surface(xy)  # the agent, then every mover
+        lost = ~on_surface[1:] | (self._d.xpos[self.body_ids[1:], 2] < -1.0)
+        return bool(on_surface[0]), lost
+
+
+class Clearances:
+    """Clearance from the agent's disc to every static obstacle and mover over one episode, metres.
+
+    Args:
+        statics: the episode's static obstacles' footprints.
+        mover_xy: (n, 2) the movers' start positions, metres.
+        mover_half: (n, 2) the movers' footprint half-extents, metres.
+        mover_radius: (n,) the movers' footprint rounding radii, metres.
+        agent_radius: the agent's disc radius, metres.
+    """
+
+    def __init__(
+        self,
+        statics: Footprints,
+        mover_xy: np.ndarray,
+        mover_half: np.ndarray,
+        mover_radius: np.ndarray,
+        agent_radius: float,
+    ) -> None:
+        self.footprints = Footprints.concatenate(
+            [  # statics, then movers (rows refreshed every step)
+                statics,
+                Footprints(mover_xy.copy(), mover_half.copy(), np.zeros(len(mover_xy)), mover_radius.copy()),
+            ]
+        )
+        """Every obstacle's footprint, the static ones first; the movers' rows hold the last call's poses."""
+        self._n_static = len(statics)
+        self._half, self._radius = self.footprints.half.tolist(), self.footprints.radius.tolist()
+        self._agent_radius = agent_radius
+
+    def __call__(self, st: dict[str, np.ndarray]) -> np.ndarray:
+        """Clearance (k,) from the agent's disc to every static obstacle and mover for the state ``st``
+        (``FusedStepper.read_state``), metres.
+
+        ``Footprints.distance`` from one point, written out on plain floats (about 25 footprints: numpy's cost
+        per call outweighs its work); the cosines and sines still come from numpy. Equal to
+        ``self.footprints.distance(agent)[0] - radius`` to a few ulps (``math.hypot`` rounds differently), NaN
+        where it is NaN (the builtin ``max``/``min`` keep a NaN first argument, as numpy's do).
+        """
+        fp, k = self.footprints, self._n_static
+        fp.centers[k:] = st["xy"][1:]  # movers' rows are updated in place (hot path)
+        fp.yaw[k:] = st["yaw"][1:]
+        px, py = st["xy"][0].tolist()
+        agent_r, hypot = self._agent_radius, math.hypot
+        out = []
+        for (cx, cy), (hx, hy), r, c, s in zip(
+            fp.centers.tolist(),
+            self._half,
+            self._radius,
+            np.cos(fp.yaw).tolist(),
+            np.sin(fp.yaw).tolist(),
+            strict=True,
+        ):
+            rx, ry = px - cx, py - cy
+            qx = abs(rx * c + ry * s) - hx
+            qy = abs(-rx * s + ry * c) - hy
+            outside = hypot(max(qx, 0.0), max(qy, 0.0))
+            out.append(outside + min(max(qx, qy), 0.0) - r - agent_r)
+        return np.array(out)
