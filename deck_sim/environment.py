@@ -99,7 +99,7 @@ def make_environment(
     """A composer environment for a scene spec.
 
     The task's control period (``spec.episode.control_period``) is composer's only substep: the physics substeps
-    are fused inside the task (see ``deck_sim.tasks.navigate``). Physics divergence ends the episode cleanly
+    are fused inside the task (see ``deck_sim.tasks.physics_step``). Physics divergence ends the episode cleanly
     (the task flags it in ``task.last_info["diverged"]``) instead of raising. ``plain_observations`` takes the
     observation through ``_PlainUpdater`` (the same arrays as composer's updater, cheaper).
     """
