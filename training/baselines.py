@@ -5,10 +5,11 @@ normalised by SB3's ``VecNormalize`` (statistics frozen for evaluation). DQN act
 displacements: stand still, or one of ``HEADINGS`` world-frame directions at each of ``SPEEDS`` fractions of the
 reach (17 actions). A2C acts on the continuous (x, y) action like DDPG.
 
-A run folder holds ``progress.csv`` and ``eval.csv`` with the columns of the DDPG runs (where SB3 has them),
-TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own formats, which pickle:
-load only runs you trust). ``--resume`` loads them and goes on for the remaining steps; unlike the DDPG trainer it
-is not bit-exact (SB3 does not restore the environments' episodes).
+Every setting of a run is a field of its config (``DQNConfig`` or ``A2CConfig``, ``training.baseline_config``). A
+run folder holds that config as ``config.json``, ``progress.csv`` and ``eval.csv`` with the columns of the DDPG
+runs (where SB3 has them), TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own
+formats, which pickle: load only runs you trust). ``--resume`` loads them and goes on for the remaining steps;
+unlike the DDPG trainer it is not bit-exact (SB3 does not restore the environments' episodes).
 
 As the DDPG trainer does, a run also writes its policy as a weights-only ``.npz`` that ``deck_sim.policies``
 evaluates with numpy alone (``export_sb3``: format ``deck_sim.actor/2``): ``actor_best.npz`` at the best periodic
@@ -37,7 +38,9 @@ from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy
 from deck_sim.rollout import git_commit, run_episode
 from deck_sim.wrappers import DeckSimEnv
-from training.config import train_episode_seed
+from training.baseline_config import A2CConfig, BaselineConfig, DQNConfig, baseline_config
+from training.config import ConfigError, train_episode_seed
+from training.runlog import EVAL_FIELDS, PROGRESS_FIELDS, eval_row
 
 log = logging.getLogger(__name__)
 
@@ -186,30 +189,34 @@ def train_baseline(
     out: str | Path,
     resume: bool = False,
     progress: bool = True,
-    eval_every: int = 10_000,
-    eval_episodes: int = 20,
-    eval_seed: int = 500,
-    log_every: int = 1_000,
-    scene_overrides: dict[str, Any] | None = None,
-    **sb3_kwargs: Any,
+    **overrides: Any,
 ) -> dict[str, Any]:
-    """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps (default 50,000) in ``out``.
+    """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps (None: the config's default) in ``out``.
 
-    ``sb3_kwargs`` go to the SB3 constructor (e.g. ``learning_rate``). Returns the last held-out evaluation and
-    the run's counters, in the shape ``Trainer.train`` returns. Writes ``actor_best.npz`` (best periodic
-    evaluation) and ``actor.npz`` (final) for ``deck_sim.policies.LearnedPolicy``.
+    ``overrides`` are fields of the algorithm's config (``DQNConfig`` or ``A2CConfig``: SB3 hyperparameters such
+    as ``learning_rate``, the evaluation and logging settings, ``scene_overrides``); the config is checked before
+    anything is built (``ConfigError`` naming an unknown field or a bad value) and saved as ``config.json`` with a
+    new run. A resumed run continues the saved model to ``steps`` with the evaluation and logging settings given
+    now; its SB3 hyperparameters are the saved model's. Returns the last held-out evaluation and the run's
+    counters, in the shape ``Trainer.train`` returns. Writes ``actor_best.npz`` (best periodic evaluation) and
+    ``actor.npz`` (final) for ``deck_sim.policies.LearnedPolicy``.
     """
+    if "total_steps" in overrides:
+        raise ConfigError("total_steps: given by the steps argument (deck-sim train --steps)")
+    fields = {"scene": scene, "seed": seed, **overrides}
+    if steps is not None:
+        fields["total_steps"] = int(steps)
+    cfg = baseline_config(algo, **fields)
+
     from stable_baselines3 import A2C, DQN
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, CheckpointError, eval_row
+    from training.checkpoints import CheckpointError
 
-    if algo not in BASELINES:
-        raise ValueError(f"unknown baseline {algo!r}; expected one of {', '.join(BASELINES)}")
-    steps = 50_000 if steps is None else int(steps)
+    scene, seed, steps, overrides = cfg.scene, cfg.seed, cfg.total_steps, cfg.scene_overrides
+    eval_every, eval_episodes, eval_seed, log_every = cfg.eval_every, cfg.eval_episodes, cfg.eval_seed, cfg.log_every
     out = Path(out)
-    overrides = dict(scene_overrides or {})
     venv = DummyVecEnv([lambda: _make_env(algo, scene, seed, overrides)])
     keys = venv.envs[0].unwrapped.observation_keys
     shapes = venv.envs[0].unwrapped.composer_env.task.observation_shapes
@@ -226,9 +233,9 @@ def train_baseline(
             raise CheckpointError(f"{out}: cannot load the saved model ({err})") from err
         done_steps = int(model.num_timesteps)
         earlier = _read_rows(out / "eval.csv")
-        wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock counts every session
+        wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock spans every process
         best_success = max((float(r["success"]) for r in earlier), default=-1.0)
-        with open(out / "eval.csv", "w", newline="") as f:  # (the header of today's columns, for older runs)
+        with open(out / "eval.csv", "w", newline="") as f:  # rewritten with EVAL_FIELDS, whatever columns it had
             w = csv.DictWriter(f, fieldnames=EVAL_FIELDS, restval="")
             w.writeheader()
             w.writerows({k: r.get(k, "") for k in EVAL_FIELDS} for r in earlier)
@@ -238,43 +245,19 @@ def train_baseline(
             raise CheckpointError(f"{out} already holds a run (model.zip); resume it with --resume or choose another")
         out.mkdir(parents=True, exist_ok=True)
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=10.0)
-        defaults: dict[str, Any] = (
-            {
-                "learning_starts": 2_000,
-                "buffer_size": 300_000,
-                "exploration_fraction": 0.3,
-                "target_update_interval": 2_000,
-            }
-            if algo == "dqn"
-            else {"n_steps": 16}
-        )
         model = cls(
             "MlpPolicy",
             venv,
             seed=seed,
             verbose=0,
             tensorboard_log=str(out / "tb"),
-            policy_kwargs={"net_arch": [256, 256]},
-            **{**defaults, **sb3_kwargs},
+            policy_kwargs={"net_arch": list(cfg.net_arch)},
+            **cfg.sb3_kwargs(),
         )
-        for name, fields in (("progress.csv", PROGRESS_FIELDS), ("eval.csv", EVAL_FIELDS)):
+        for name, columns in (("progress.csv", PROGRESS_FIELDS), ("eval.csv", EVAL_FIELDS)):
             with open(out / name, "w", newline="") as f:
-                csv.DictWriter(f, fieldnames=fields).writeheader()
-        (out / "config.json").write_text(
-            json.dumps(
-                {
-                    "algo": algo,
-                    "scene": scene,
-                    "seed": seed,
-                    "steps": steps,
-                    "sb3": sb3_kwargs,
-                    "scene_overrides": overrides,
-                    "predictor": "none",
-                },
-                indent=2,
-                sort_keys=True,
-            )
-        )
+                csv.DictWriter(f, fieldnames=columns).writeheader()
+        cfg.save(out / "config.json")
     eval_env = deck_sim.load(scene, seed=eval_seed, **{**overrides, "episode__predictor": "none"})
     run_config = json.loads((out / "config.json").read_text())
     best = {"success": best_success}
@@ -286,7 +269,8 @@ def train_baseline(
             "observation_keys": list(keys),
             "observation_shapes": {k: list(v) for k, v in shapes.items()},
             "trained_steps": int(step),
-            "config": {**run_config, "total_steps": int(run_config["steps"])},
+            # (a config.json that names the run's length ``steps`` rather than ``total_steps`` is read as well)
+            "config": {**run_config, "total_steps": int(run_config.get("total_steps", run_config.get("steps")))},
             "deck_sim_version": deck_sim.__version__,
             "git_commit": git_commit(),
         }
@@ -405,8 +389,12 @@ def load_baseline(run_dir: str | Path) -> SB3Policy:
 
 __all__ = [
     "BASELINES",
+    "A2CConfig",
+    "BaselineConfig",
+    "DQNConfig",
     "SB3Policy",
     "discrete_actions",
+    "baseline_config",
     "export_sb3",
     "load_baseline",
     "save_sb3_actor",

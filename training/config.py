@@ -2,7 +2,7 @@
 
 The run writes its ``TrainConfig`` out as ``config.json`` beside its logs and checkpoints. Two presets name the
 recipes compared in ``benchmarks/learning.py``: ``paper`` (plain DDPG as the paper describes it: one environment,
-one update per step, Gaussian noise, no demonstrations, no normalisation) and ``tuned`` (the switches that were
+one update per step, Gaussian noise, no demonstrations, no normalisation) and ``tuned`` (the switches
 measured to pay on the physical deck; see the README's learning section).
 
 Seeds: training episode ``k`` of environment ``i`` in a run seeded ``s`` is reset with
@@ -180,8 +180,9 @@ class TrainConfig:
     """After the last environment step, fit a freshly initialised actor to the planner's action on every labelled
     transition of the replay buffer (demonstrations and relabelled agent states) for this many epochs: the cloning
     loss alone, minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. This is DAgger's
-    supervised step on the aggregated data (measured on deck 1 and 2: within the noise of one seed,
-    ``docs/training.md``). 0: off. A finished run can be polished later (``--resume --set polish_epochs=N``)."""
+    supervised step on the aggregated data (its effect on deck 1 and 2 is measured in ``docs/training.md``, "More
+    data per update, and a final cloning fit"). 0: off. A finished run can be polished later
+    (``--resume --set polish_epochs=N``)."""
     polish_lr: float = 1e-3
     """Starting learning rate of the final cloning fit (``polish_epochs``)."""
     polish_hidden: tuple[int, ...] = ()
@@ -321,7 +322,7 @@ class TrainConfig:
 PRESETS: dict[str, dict[str, Any]] = {
     # the paper's recipe: plain DDPG, one environment, one update per step, Gaussian noise
     "paper": {},
-    # the switches that paid on the physical deck (benchmarks/learning.py)
+    # the switches that pay on the physical deck (measured by benchmarks/learning.py)
     "tuned": {
         "obs_norm": True,
         "twin_critics": True,
@@ -417,30 +418,20 @@ SHIPPED_RECIPES: dict[str, ShippedArm] = {
     "square": ShippedArm("tuned-{algo}-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)),
 }
 """The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
-``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned`` and
-ends with the cloning fit: 160,000 steps in about the wall-clock time ``tuned`` took for 40,000 on the decks, 46-48
-min per MLP run on the square (two runs sharing the cores, against 23-30 min for 40,000; the set-actor runs shipped
-since session 17 took 68-88 min with four to six runs on the cores). On the decks the observation also carries each
-mover's footprint size (``size``), which the square's pedestrians, all 0.3 m discs, do not need; on the square it
-carries the target and the square's edges at a near scale (``near``), without which the walker, reading metres at the
-scale of a 100 m square, walked off it in 28.5 % (MDDPG) and 29.0 % (DDPG) of the held-out episodes
-(``docs/training.md``, the square). Every scene ships two seeds of each agent, acting by the mean of their actions:
-on the held-out streams the MLP pair was at least as good as its better member in 7 of 8 comparisons on the decks
-(``docs/training.md``, "Averaging the actions of two seeds") and in 3 of 4 on the square; the square's set-actor
-pairs shipped since session 17 are in 3 of 6 (the recipe keeps the pairs its shipping rule named). Since session 16
-the decks' actors read the obstacles through the set actor (``sets``: one shared, max-pooled encoder per set of
-obstacles): deck 1's pairs reach 98.5 % (MDDPG) and 92.5 % (DDPG) of the seed-1000 episodes, against the MLP pairs'
-90.0 % and 83.5 % (``docs/training.md``, "Shipped on deck 1: two seeds of the set actor"), and deck 2's, at 160,000
-steps, beat the MLP pairs of 320,000 steps (the MLP needed twice the steps there; ``docs/training.md``, "Twice the
-steps on deck 2" and "Deck 2: the set actor at half the steps"). Since session 17 the square's actors are set actors
-too, reading every obstacle's nearest point within the near field at that field's scale (``close``): without it the
-set actor ran into the square's standing groups (``docs/training.md``, "The obstacles in the near field"). Since
-session 18 deck 2's actors read the near obstacles too (``close``; the declared rule on stream 500 held, within the
-noise of the old pairs), and deck 1's are taught by the planner that checks the aircraft's nose and tail on the way
-its tracker will really take it (``body``): deck 1's pairs reach 99.0 % (MDDPG) and 90.0 % (DDPG) of the seed-1000
-episodes (``docs/training.md``, "The teacher's body"). Since session 20 deck 1's runs end with one DAgger round
-(``dagger``): on seeds 2 and 3, on which it was not found, it cut the MDDPG pair's failures on 600 selection
-episodes from 16 to 10, as on seeds 0 and 1 (15 to 10; ``docs/training.md``, "A DAgger round on fresh seeds")."""
+``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned``
+(``data``), ends with the final cloning fit (``polish``) and reads the obstacles through the set actor (``sets``:
+one shared, max-pooled encoder per set of obstacles); every scene ships two seeds of each agent, acting by the mean
+of their actions (``docs/training.md``, "Averaging the actions of two seeds"). On the decks the observation also
+carries each mover's footprint size (``size``), which the square's pedestrians, all discs of one size, do not
+need; on the square it carries the target and the square's edges at a near scale (``near``), without which the
+walker, reading metres at the scale of the whole square, leaves it in a large share of the held-out episodes
+(``docs/training.md``, "The square").
+Deck 2's and the square's actors also read every obstacle's nearest point within the near field at that field's
+scale (``close``; ``docs/training.md``, "The obstacles in the near field"). Deck 1's are taught by the planner that
+checks the aircraft's nose and tail on the way its tracker will really take it (``body``; ``docs/training.md``,
+"The teacher's body"), and its runs end with one DAgger round (``dagger``; ``docs/training.md``, "A DAgger round
+on fresh seeds"). The shipped files' held-out results are in ``deck_sim/trained/README.md`` and
+``docs/results.md``."""
 
 
 def shipped_arm(scene: str, algo: str) -> ShippedArm:

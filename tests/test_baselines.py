@@ -1,0 +1,93 @@
+"""The stable-baselines3 baselines (``training.baselines``): DQN and A2C train, evaluate and resume, and their
+config (``DQNConfig``, ``A2CConfig``) is checked before a run starts and saved with it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from training_runs import csv_rows
+
+
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
+    from training.baselines import discrete_actions, load_baseline, train_baseline
+
+    out = tmp_path / algo
+    kwargs = {"learning_starts": 20, "buffer_size": 1000} if algo == "dqn" else {"n_steps": 8}
+    summary = train_baseline(
+        algo, "deck1", 48, 0, out, progress=False, eval_every=0, eval_episodes=1, log_every=16, **kwargs
+    )
+    assert summary["step"] == 48 and summary["eval"]["episodes"] == 1
+    assert len(csv_rows(out / "progress.csv")) == 3 and len(csv_rows(out / "eval.csv")) == 1
+    again = train_baseline(
+        algo, "deck1", 64, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1, log_every=16
+    )
+    assert again["step"] == 64
+    policy = load_baseline(out)
+    import deck_sim
+
+    env = deck_sim.load("deck1", seed=3, episode__predictor="none")
+    action = policy.act(env.reset().observation)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    if algo == "dqn":
+        assert any(np.allclose(action, row) for row in discrete_actions())
+
+
+def test_the_baseline_config_names_a_bad_field_before_any_run_folder_is_made(tmp_path):
+    from training.baselines import A2CConfig, DQNConfig, baseline_config, train_baseline
+    from training.config import ConfigError
+
+    out = tmp_path / "run"
+    for overrides, field in (
+        ({"learning_rate": "fast"}, "learning_rate"),
+        ({"buffer_size": 1.5}, "buffer_size"),
+        ({"n_steps": 8}, "n_steps"),  # an A2C field, not DQN's
+        ({"eval_every": -1}, "eval_every"),
+        ({"exploration_fraction": 2.0}, "exploration_fraction"),
+        ({"net_arch": [64, 0]}, "net_arch"),
+        ({"total_steps": 100}, "total_steps"),  # given by the steps argument
+    ):
+        with pytest.raises(ConfigError, match=field):
+            train_baseline("dqn", "deck1", 64, 0, out, progress=False, **overrides)
+        assert not out.exists()
+    with pytest.raises(ConfigError, match="unknown dqn config field"):
+        train_baseline("dqn", "deck1", 64, 0, out, progress=False, learning_rates=1e-3)
+    with pytest.raises(ConfigError, match="use_rms_prop: expected true or false"):
+        baseline_config("a2c", use_rms_prop=1)
+    with pytest.raises(ConfigError, match="seed"):
+        baseline_config("a2c", seed=5_000)
+    with pytest.raises(ConfigError, match="algo"):
+        baseline_config("ppo")
+    assert not out.exists()
+    dqn = baseline_config("dqn", learning_rate=1, net_arch=[64, 64])
+    assert isinstance(dqn, DQNConfig) and dqn.learning_rate == 1.0 and isinstance(dqn.learning_rate, float)
+    assert dqn.net_arch == (64, 64) and dqn.sb3_kwargs()["learning_starts"] == 2_000
+    assert DQNConfig.from_dict(dqn.to_dict()) == dqn
+    a2c = baseline_config("a2c")
+    assert isinstance(a2c, A2CConfig) and a2c.sb3_kwargs()["n_steps"] == 16
+    with pytest.raises(ConfigError, match="algo: this is a dqn config"):
+        DQNConfig.from_dict(a2c.to_dict())
+
+
+def test_a_baseline_run_saves_its_config_and_resumes_a_run_of_the_step_count_format(tmp_path):
+    """``config.json`` holds every field of the run's config; a run folder whose ``config.json`` gives the run's
+    length as ``steps`` (and its SB3 keywords under ``sb3``) resumes, its actor's record giving ``total_steps``."""
+    import json
+
+    from deck_sim.policies import LearnedPolicy
+    from training.baselines import DQNConfig, train_baseline
+
+    out = tmp_path / "dqn"
+    train_baseline("dqn", "deck1", 32, 0, out, progress=False, eval_every=0, eval_episodes=1, learning_starts=20,
+                   buffer_size=1000)
+    saved = json.loads((out / "config.json").read_text())
+    assert DQNConfig.from_dict(saved) == DQNConfig(
+        total_steps=32, eval_every=0, eval_episodes=1, learning_starts=20, buffer_size=1000
+    )
+    assert LearnedPolicy.load(out / "actor.npz").meta["config"] == saved
+    old = {"algo": "dqn", "predictor": "none", "sb3": {"buffer_size": 1000, "learning_starts": 20},
+           "scene": "deck1", "scene_overrides": {}, "seed": 0, "steps": 32}
+    (out / "config.json").write_text(json.dumps(old))
+    train_baseline("dqn", "deck1", 48, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
+    meta = LearnedPolicy.load(out / "actor.npz").meta
+    assert meta["trained_steps"] == 48 and meta["config"]["seed"] == 0 and "total_steps" in meta["config"]

@@ -1,0 +1,145 @@
+"""The end of a training run: the final cloning fit (``polish_epochs``), the DAgger round (``dagger_steps``) and
+the exported actor files.
+
+When the online steps are done, ``finish`` evaluates the last actor (unless that step was evaluated already), then
+fits a fresh actor to the planner's labels on the whole replay buffer (``polish``), then lets that fitted actor
+drive for ``dagger_steps`` more steps, labelled by the planner, and fits again (``dagger_round``), and finally writes
+``actor.npz``. Each part runs once per run: a finished run resumed with the fit or the round added does only what
+it lacks. ``actor_best.npz`` is written by the trainer's evaluations; ``shipped_actor`` picks the one of the two
+files a finished run ships.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+import deck_sim
+from deck_sim.policies import LearnedPolicy
+from training.config import TrainConfig
+from training.ddpg import DDPGAgent
+from training.envs import ObservationLayout
+
+if TYPE_CHECKING:
+    from training.loop import Trainer
+
+log = logging.getLogger(__name__)
+
+
+def actor_meta(
+    config: TrainConfig, layout: ObservationLayout, agent: DDPGAgent, step: int, commit: str, polished: bool = False
+) -> dict[str, Any]:
+    """The record of an exported actor; ``commit`` is the source the training process runs (read at its start:
+    the tree may change while a long run goes on)."""
+    return {
+        **agent.actor_meta(),
+        "scene": config.scene,
+        "scene_overrides": config.scene_overrides,
+        "algo": config.algo,
+        "predictor": config.predictor,
+        "observation_keys": list(layout.keys),
+        "observation_shapes": {k: list(v) for k, v in layout.shapes.items()},
+        "trained_steps": int(step),
+        "polished": bool(polished),
+        "config": config.to_dict(),
+        "deck_sim_version": deck_sim.__version__,
+        "git_commit": commit,
+    }
+
+
+def save_actor(path: str | os.PathLike[str], agent: DDPGAgent, meta: dict[str, Any]) -> None:
+    """Write the agent's greedy actor as a weights-only ``.npz`` (atomically)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, meta=np.array(json.dumps(meta)), **agent.export_actor())
+    os.replace(tmp, path)
+
+
+def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
+    """The actor file of a finished run that ``scripts/train_shipped.py`` ships.
+
+    A run whose final ``actor.npz`` is the cloning fit's (its own record says ``polished``) ships that file; any
+    other run (stable-baselines3's, or one without the fit) the actor of its best periodic evaluation,
+    ``actor_best.npz``. Picking the best of several short evaluations picks noise as much as skill: the two are
+    compared on held-out episodes in ``docs/training.md``, "The best of ten evaluations against the final actor".
+    """
+    run = Path(run_dir)
+    final = run / "actor.npz"
+    if final.exists() and LearnedPolicy.load(final).meta.get("polished", False):
+        return final
+    return run / "actor_best.npz"
+
+
+def polish(trainer: Trainer) -> None:
+    """The final cloning fit on every labelled transition of the buffer (``polish_epochs``); its loss per epoch
+    goes to TensorBoard as ``polish/bc_loss``."""
+    cfg, buffer = trainer.config, trainer.buffer
+    rows = np.flatnonzero(buffer.labelled[: buffer.size] > 0)
+    obs, target = buffer.obs[rows], buffer.expert_action[rows]
+    log.info("polishing the actor: %d epochs over %d labelled transitions", cfg.polish_epochs, len(rows))
+    t0 = time.perf_counter()
+    losses = trainer.agent.polish(obs, target, cfg.polish_epochs, torch.Generator().manual_seed(cfg.seed + 2))
+    trainer._tick()
+    trainer.polished = True
+    for epoch, loss in enumerate(losses):
+        trainer.runlog.scalar("polish/bc_loss", loss, epoch)
+    log.info("polished in %.0f s: cloning loss %.4f -> %.4f", time.perf_counter() - t0, losses[0], losses[-1])
+
+
+def dagger_round(trainer: Trainer) -> dict[str, Any] | None:
+    """Drive the fitted actor for the ``dagger_steps`` not yet done (greedy, no updates), every state labelled by
+    the planner, then fit again, evaluate and checkpoint. Returns the evaluation, or None if stopped first."""
+    cfg = trainer.config
+    steps = cfg.dagger_steps - trainer.dagger_done
+    log.info("DAgger round: the fitted actor drives %d steps, labelled by the planner", steps)
+    end = trainer.step + steps
+    bar = tqdm(total=steps, desc="DAgger round", unit="step", disable=not trainer.progress, leave=False)
+    with trainer.stop_on_sigint(), bar:
+        while trainer.step < end and not trainer._stop:
+            trainer.collect(explore=False)
+            trainer._tick()
+            bar.update(cfg.num_envs)
+    if trainer.step < end:
+        log.warning("the DAgger round stopped before its fit: --resume starts it again from the fitted run")
+        return None
+    polish(trainer)
+    trainer.dagger_done = cfg.dagger_steps
+    summary = trainer.evaluate()
+    trainer.save_checkpoint()
+    return summary
+
+
+def finish(trainer: Trainer, last_eval: dict[str, Any]) -> dict[str, Any]:
+    """After the run's last online step: the final evaluation, the fit and the DAgger round the config asks for and
+    has not had, then ``actor.npz``. Returns the last evaluation's summary (``last_eval`` if none was made).
+
+    A stop (Ctrl-C) skips what is left; a run stopped while its fit or its round is owed writes no ``actor.npz``.
+    """
+    cfg = trainer.config
+    if trainer.last_eval_step != trainer.step:
+        last_eval = trainer.evaluate()
+        trainer.save_checkpoint()  # (with the best success so far: a later polish is compared with it)
+    owed = bool(cfg.polish_epochs) and not trainer.polished
+    if owed and not trainer._stop:
+        # the checkpoint is written after the polished evaluation: a run that dies before it polishes again
+        polish(trainer)
+        last_eval = trainer.evaluate()
+        trainer.save_checkpoint()
+        owed = False
+    if not owed and trainer.dagger_done < cfg.dagger_steps and not trainer._stop:
+        # no checkpoint inside the round: one stopped before its fit starts again from the fitted run
+        round_eval = dagger_round(trainer)
+        owed = round_eval is None
+        last_eval = round_eval or last_eval
+    if not owed:
+        meta = actor_meta(cfg, trainer.layout, trainer.agent, trainer.step, trainer.commit, trainer.polished)
+        save_actor(trainer.run_dir / "actor.npz", trainer.agent, meta)
+    return last_eval
