@@ -19,8 +19,8 @@ LINE_INTERVAL_S = 30.0
 class LineProgress:
     """A progress report as plain lines: ``desc: n/total unit (pct) in t s, postfix``.
 
-    Implements the part of tqdm's interface that deck_sim calls: iteration, ``update``, ``set_postfix``, ``n``,
-    ``close`` and use as a context manager.
+    Implements the part of tqdm's interface that deck_sim calls: iteration, ``update``, ``set_postfix``, ``write``,
+    ``n``, ``close`` and use as a context manager.
     """
 
     def __init__(
@@ -78,6 +78,11 @@ class LineProgress:
         del refresh
         items = {**(ordered_dict or {}), **kwargs}
         self._postfix = ", ".join(f"{k}={v}" for k, v in items.items())
+
+    def write(self, text: str) -> None:
+        """Print a message on its own line (as tqdm's ``write``)."""
+        if not self.disable:
+            print(text, file=self.file, flush=True)
 
     def close(self) -> None:
         """Print the final line (unless ``leave`` is false or the report is disabled)."""

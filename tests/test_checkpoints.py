@@ -63,7 +63,7 @@ def test_bad_checkpoints_give_clear_errors(tmp_path):
 
 @pytest.mark.slow
 def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
-    from training.cli import main
+    from deck_sim.cli import main
 
     out = tmp_path / "run"
     Trainer(_short(total_steps=60, demo_episodes=0, pretrain_updates=0), out, progress=False).train()

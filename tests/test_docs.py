@@ -17,7 +17,8 @@ from deck_sim.cli import build_parser
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 HISTORY = re.compile(
-    r"\bsessions? [0-9]+|earlier session[s]|\bissues? #?[0-9]+|earlier machine|\.\./shared/|shared/(reference|design)/",
+    r"\bsessions? [0-9]+|earlier session[s]|\bissues? #?[0-9]+|earlier machin[e]"
+    r"|\.\./shared/|shared/(reference|design)/",
     re.IGNORECASE,
 )
 """Wording that tells the project's history rather than describing it."""
@@ -138,8 +139,9 @@ def test_no_tracked_text_tells_the_story_of_its_making():
 
 
 def test_the_history_check_catches_what_it_looks_for():
-    for text in ("as measured in session 12", "Earlier sessions found", "targets (issue 3)", "see ../shared/x.md",
-                 "on the earlier machine", "shared/reference/paper.md"):
+    # the examples are assembled so that this file does not hold the wording it forbids
+    for text in ("as measured in sess" + "ion 12", "Earlier sess" + "ions found", "targets (iss" + "ue 3)",
+                 "see ../sha" + "red/x.md", "on the earlier mach" + "ine", "sha" + "red/reference/paper.md"):
         assert HISTORY.search(text), text
     for text in ("a session of training", "the issue of timing", "docs/results.md"):
         assert not HISTORY.search(text), text

@@ -132,8 +132,8 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
 
 def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
     import deck_sim
+    from deck_sim.cli import main
     from deck_sim.policies import LearnedPolicy, PolicyFileError
-    from training.cli import main
 
     run = tmp_path / "run"
     Trainer(
@@ -180,7 +180,7 @@ def test_the_shipped_policies_load_and_act_on_their_scene(scene):
 
 @pytest.mark.slow
 def test_cli_trains_resumes_and_runs_the_exported_actor(tmp_path, capsys):
-    from training.cli import main
+    from deck_sim.cli import main
 
     out = tmp_path / "cli"
     args = [

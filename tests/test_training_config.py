@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from training.config import ConfigError, TrainConfig, make_config, train_episode_seed
@@ -54,23 +56,65 @@ def test_recipe_switches_combine_with_plus_and_merge_scene_overrides():
     assert close.actor_arch == "sets"
     assert arm_config("tuned-ddpg-with-data+body", "deck1", steps=10_000, seed=0).teacher_body
     assert not arm_config("tuned-ddpg-with-data", "deck1", steps=10_000, seed=0).teacher_body
-    from training.config import SHIPPED_RECIPES, shipped_arm
+    from training.recipes import load_recipe
 
-    for scene in SHIPPED_RECIPES:  # every shipped recipe is a valid arm
-        arm = shipped_arm(scene, "ddpg")
-        assert arm_config(arm.recipe, scene, arm.steps, 0, arm.eval_every, arm.eval_episodes).algo == "ddpg"
-    assert shipped_arm("deck1", "mddpg")[:4] == (
-        "tuned-mddpg-with-data+polish+size+sets+body+dagger", 160_000, 20_000, 100
-    )
-    deck1 = arm_config(shipped_arm("deck1", "ddpg").recipe, "deck1", 160_000, 0)
+    benchmark_names = {  # the recipe files' configurations, as benchmarks/learning.py names them
+        "deck1": "tuned-{algo}-with-data+polish+size+sets+body+dagger",
+        "deck2": "tuned-{algo}-with-data+polish+size+sets+close",
+        "square": "tuned-{algo}-with-data+polish+near+sets+close",
+    }
+    for scene, name in benchmark_names.items():
+        recipe = load_recipe(scene)
+        for algo in ("mddpg", "ddpg"):  # two seeds' actors averaged, MDDPG and DDPG alike
+            assert recipe.seeds(algo) == (0, 1) and recipe.steps(algo) == 160_000
+            from_file = recipe.config(algo, 0).to_dict()
+            named = arm_config(name.format(algo=algo), scene, 160_000, 0, 20_000, 100).to_dict()
+            assert {**from_file, "extra": None} == {**named, "extra": None}, (scene, algo)
+    deck1 = load_recipe("deck1").config("ddpg", 0)
     assert (deck1.actor_arch, deck1.polish_epochs, deck1.scene_overrides) == ("sets", 20, {"episode__mover_size": True})
     assert deck1.teacher_body and deck1.dagger_steps == 40_000
-    assert shipped_arm("deck2", "ddpg")[:2] == ("tuned-ddpg-with-data+polish+size+sets+close", 160_000)
-    for deck in ("deck1", "deck2", "square"):  # two seeds' actors averaged, MDDPG and DDPG alike
-        assert shipped_arm(deck, "ddpg").seeds == shipped_arm(deck, "mddpg").seeds == (0, 1)
-    assert shipped_arm("square", "mddpg") == (
-        "tuned-mddpg-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)
-    )
     for bad in ("tuned-mddpg-with-data+nope", "tuned-mddpg-with-data+data", "tuned-mddpg-no-data"):
         with pytest.raises(ConfigError, match="unknown switch"):
             arm_config(bad, "deck1", steps=10_000, seed=0)
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("batch_size=abc", "batch_size: expected an integer, got 'abc'"),
+        ("twin_critics=maybe", "twin_critics: expected true or false, got 'maybe'"),
+        ("hidden=[256,\"wide\"]", "hidden\\[1\\]: expected an integer"),
+        ("actor_lr=true", "actor_lr: expected a number, got True"),
+        ("wings=2", "unknown training config field\\(s\\): wings"),
+        ("seed=3", "use --seed"),
+    ],
+)
+def test_set_is_type_checked_with_exit_code_2_and_no_run_folder(tmp_path, capsys, item, message):
+    from deck_sim.cli import main
+
+    out = tmp_path / "run"
+    assert main(["train", "--algo", "mddpg", "--set", item, "--out", str(out), "--quiet"]) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not out.exists()
+
+
+def test_from_dict_reads_json_kinds_as_their_field_types():
+    cfg = TrainConfig.from_dict({"actor_lr": 1, "hidden": [64, 32], "bc_weight_final": None,
+                                 "curriculum": [{"until": 1, "max_target_distance": 30, "movers": 2}]})
+    assert isinstance(cfg.actor_lr, float) and cfg.hidden == (64, 32) and cfg.bc_weight_final is None
+    assert cfg.curriculum[0].max_target_distance == 30.0
+    with pytest.raises(ConfigError, match=r"curriculum\[0\]: expected the fields until, max_target_distance, movers"):
+        TrainConfig.from_dict({"curriculum": [{"until": 1}]})
+
+
+def test_train_help_lists_every_config_field(capsys):
+    import dataclasses
+
+    from deck_sim.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = capsys.readouterr().out
+    for f in dataclasses.fields(TrainConfig):
+        assert f"  {f.name} (" in text, f.name
+    assert "twin_critics (bool, default false)" in text

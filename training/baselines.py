@@ -31,11 +31,11 @@ from typing import Any
 
 import gymnasium
 import numpy as np
-from tqdm import tqdm
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy
+from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import git_commit, run_episode
 from deck_sim.wrappers import DeckSimEnv
 from training.baseline_config import A2CConfig, BaselineConfig, DQNConfig, baseline_config
@@ -295,7 +295,9 @@ def train_baseline(
             self.ret = 0.0
             self.t0 = time.perf_counter()
             self.t_log, self.n_log = self.t0, done_steps
-            self.bar = tqdm(total=steps, initial=done_steps, desc=f"{algo} {scene}", unit="step", disable=not progress)
+            self.bar = progress_report(
+                total=steps, initial=done_steps, desc=f"{algo} {scene}", unit="step", disable=not progress
+            )
             self.last_eval: dict[str, float] = {}
             self.episodes = 0
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -102,6 +103,9 @@ def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | Non
     label = recipe.name if recipe is not None else Path(scene).stem
     out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{label}-seed{args.seed}"
     changes = parse_assignments(args.set)
+    flags = sorted({"algo", "scene", "seed"} & set(changes))
+    if flags:
+        raise ConfigError(f"--set {flags[0]}=...: use --{flags[0]} for the run's {', '.join(flags)}")
     if agents.AGENTS[args.algo].trainer == "sb3":
         baseline = recipe.baseline_kwargs(args.algo) if recipe is not None else {"steps": None}
         if args.steps is not None:
@@ -127,6 +131,23 @@ def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | Non
     return out, make_config(args.preset or "tuned", algo=args.algo, scene=scene, seed=args.seed, **changes), None
 
 
+def config_fields_help(width: int = 118) -> str:
+    """The ``TrainConfig`` fields that ``--set`` takes, one line each: name, type, default and what it does."""
+    import dataclasses
+    import textwrap
+
+    from training.config import TrainConfig, field_docs
+
+    docs = field_docs(TrainConfig)
+    defaults = TrainConfig().to_dict()
+    lines = ["TrainConfig fields for --set FIELD=VALUE (MDDPG and DDPG; values read as JSON):"]
+    for f in dataclasses.fields(TrainConfig):
+        first = re.split(r"\.\s+(?=[A-Z])", docs.get(f.name, ""), maxsplit=1)[0].rstrip(".")
+        head = f"  {f.name} ({f.type}, default {json.dumps(defaults[f.name])}): "
+        lines += textwrap.wrap(first, width, initial_indent=head, subsequent_indent=" " * 6) or [head.rstrip(": ")]
+    return "\n".join(lines)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``train`` and ``ensemble`` to ``deck-sim``'s subcommands."""
     p = add_command(
@@ -134,6 +155,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "A run folder holds config.json, progress.csv, eval.csv, TensorBoard curves (tb/), an atomic checkpoint and\n"
         "the actor (actor.npz, actor_best.npz). Ctrl-C stops at a checkpoint; --resume continues exactly.",
     )
+    p.epilog = config_fields_help()
     p.add_argument("--algo", default="mddpg", choices=agents.LEARNED, help="the agent to train")
     p.add_argument("--recipe", default=None,
                    help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained) or a recipe "

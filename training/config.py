@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from deck_sim import agents
 from deck_sim.evaluation import TRAIN_SEED_BASE
@@ -67,6 +69,62 @@ class CurriculumStage:
     movers: int
     """How many of the scene's movers take part; the others are left out of the episode (their observation rows
     are filled with a far-away placeholder, so the observation keeps its size)."""
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each dataclass field's docstring (the string literal under it in the source), by field name."""
+    import ast
+    import inspect
+
+    (node,) = ast.parse(inspect.getsource(cls)).body
+    docs: dict[str, str] = {}
+    body = node.body if isinstance(node, ast.ClassDef) else []
+    for field_node, doc in zip(body, body[1:], strict=False):
+        if (
+            isinstance(field_node, ast.AnnAssign)
+            and isinstance(field_node.target, ast.Name)
+            and isinstance(doc, ast.Expr)
+            and isinstance(doc.value, ast.Constant)
+            and isinstance(doc.value.value, str)
+        ):
+            docs[field_node.target.id] = " ".join(doc.value.value.split())
+    return docs
+
+
+def _typed(name: str, value: Any, hint: Any) -> Any:
+    """``value`` as a field of type ``hint`` wants it, or ``ConfigError`` naming the field and what it expects."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (types.UnionType, typing.Union):
+        if value is None and type(None) in args:
+            return None
+        (inner,) = (a for a in args if a is not type(None))
+        return _typed(name, value, inner)
+    if hint is bool and isinstance(value, bool):
+        return value
+    if hint is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if hint is str and isinstance(value, str):
+        return value
+    if origin is dict and isinstance(value, dict):
+        return value
+    if origin is tuple and isinstance(value, list | tuple):
+        return tuple(_typed(f"{name}[{i}]", v, args[0]) for i, v in enumerate(value))
+    if hint is CurriculumStage and isinstance(value, CurriculumStage):
+        return value
+    if hint is CurriculumStage and isinstance(value, dict):
+        fields = typing.get_type_hints(CurriculumStage)
+        if set(value) != set(fields):
+            raise ConfigError(f"{name}: expected the fields {', '.join(fields)}, got {', '.join(value) or 'none'}")
+        return CurriculumStage(**{k: _typed(f"{name}.{k}", v, fields[k]) for k, v in value.items()})
+    expected = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+        hint, "a table" if origin is dict else "a list" if origin is tuple else getattr(hint, "__name__", str(hint))
+    )
+    shown = "nothing" if value is None else f"{value!r} ({type(value).__name__})"
+    raise ConfigError(f"{name}: expected {expected}, got {shown}")
 
 
 @dataclass
@@ -290,20 +348,14 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        """The inverse of ``to_dict``; unknown fields raise ``ConfigError``."""
+        """The inverse of ``to_dict``: each value checked against its field's type (integers are accepted for
+        floats, lists for tuples); an unknown field or a value of the wrong type raises ``ConfigError``."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
             raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
-        d = dict(d)
-        for key in ("hidden", "polish_hidden", "set_hidden"):
-            if key in d:
-                d[key] = tuple(int(h) for h in d[key])
-        if "curriculum" in d:
-            d["curriculum"] = tuple(
-                s if isinstance(s, CurriculumStage) else CurriculumStage(**s) for s in d["curriculum"]
-            )
-        return cls(**d).validate()
+        hints = typing.get_type_hints(cls)
+        return cls(**{name: _typed(name, value, hints[name]) for name, value in d.items()}).validate()
 
     def save(self, path: str | Path) -> None:
         """Write the config as JSON."""
@@ -397,48 +449,6 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 ``teacher_body``; ``dagger``: after the final fit, the fitted actor drives 40,000 more steps, greedy and without
 updates, the planner labels them and the fit is made again, ``dagger_steps``). Several
 switches join with ``+``: ``tuned-mddpg-with-data+size``."""
-
-
-class ShippedArm(NamedTuple):
-    """How a shipped MDDPG or DDPG policy was trained: one run ``arm_config(recipe, scene, steps, seed, eval_every,
-    eval_episodes)`` per seed of ``seeds`` (``benchmarks/learning.py --steps --eval-every --eval-episodes
-    --seeds``); with several seeds the shipped file is their actors acting by the mean of their actions
-    (``deck_sim.policies.EnsemblePolicy``)."""
-
-    recipe: str
-    steps: int
-    eval_every: int = 5_000
-    eval_episodes: int = 50
-    seeds: tuple[int, ...] = (0,)
-
-
-SHIPPED_RECIPES: dict[str, ShippedArm] = {
-    "deck1": ShippedArm("tuned-{algo}-with-data+polish+size+sets+body+dagger", 160_000, 20_000, 100, (0, 1)),
-    "deck2": ShippedArm("tuned-{algo}-with-data+polish+size+sets+close", 160_000, 20_000, 100, (0, 1)),
-    "square": ShippedArm("tuned-{algo}-with-data+polish+near+sets+close", 160_000, 20_000, 100, (0, 1)),
-}
-"""The run behind the MDDPG and DDPG actors shipped for each scene (``{algo}``: ``mddpg`` or ``ddpg``;
-``scripts/train_shipped.py``). Every scene's recipe collects four times the transitions per update of ``tuned``
-(``data``), ends with the final cloning fit (``polish``) and reads the obstacles through the set actor (``sets``:
-one shared, max-pooled encoder per set of obstacles); every scene ships two seeds of each agent, acting by the mean
-of their actions (``docs/training.md``, "Averaging the actions of two seeds"). On the decks the observation also
-carries each mover's footprint size (``size``), which the square's pedestrians, all discs of one size, do not
-need; on the square it carries the target and the square's edges at a near scale (``near``), without which the
-walker, reading metres at the scale of the whole square, leaves it in a large share of the held-out episodes
-(``docs/training.md``, "The square").
-Deck 2's and the square's actors also read every obstacle's nearest point within the near field at that field's
-scale (``close``; ``docs/training.md``, "The obstacles in the near field"). Deck 1's are taught by the planner that
-checks the aircraft's nose and tail on the way its tracker will really take it (``body``; ``docs/training.md``,
-"The teacher's body"), and its runs end with one DAgger round (``dagger``; ``docs/training.md``, "A DAgger round
-on fresh seeds"). The shipped files' held-out results are in ``deck_sim/trained/README.md`` and
-``docs/results.md``."""
-
-
-def shipped_arm(scene: str, algo: str) -> ShippedArm:
-    """The run behind the shipped ``algo`` actor of ``scene``, recipe name filled in (``tuned-<algo>`` for 60,000
-    steps for a scene not in ``SHIPPED_RECIPES``)."""
-    arm = SHIPPED_RECIPES.get(scene, ShippedArm("tuned-{algo}", 60_000))
-    return arm._replace(recipe=arm.recipe.format(algo=algo))
 
 
 def arm_config(

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from deck_sim.control.planners import ScriptedPlanner
 from deck_sim.policies import ScriptedPolicy
+from deck_sim.progress import progress as progress_report
 from deck_sim.scenes import load_scene
 from deck_sim.wrappers import DeckSimEnv
 from training.config import CurriculumStage, TrainConfig, demo_episode_seed
@@ -198,7 +198,9 @@ def collect_demonstrations(
     }
     rng = np.random.default_rng([seed, 77])
     successes = 0
-    bar = tqdm(range(episodes), desc=f"demonstrations {scene}", unit="ep", disable=not progress, leave=False)
+    bar = progress_report(
+        range(episodes), desc=f"demonstrations {scene}", unit="ep", disable=not progress, leave=False
+    )
     for k in bar:
         obs, _ = env.reset(seed=demo_episode_seed(seed, k))
         policy.reset()

@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 import deck_sim
 from deck_sim.policies import LearnedPolicy
+from deck_sim.progress import progress as progress_report
 from training.config import TrainConfig
 from training.ddpg import DDPGAgent
 from training.envs import ObservationLayout
@@ -101,7 +101,7 @@ def dagger_round(trainer: Trainer) -> dict[str, Any] | None:
     steps = cfg.dagger_steps - trainer.dagger_done
     log.info("DAgger round: the fitted actor drives %d steps, labelled by the planner", steps)
     end = trainer.step + steps
-    bar = tqdm(total=steps, desc="DAgger round", unit="step", disable=not trainer.progress, leave=False)
+    bar = progress_report(total=steps, desc="DAgger round", unit="step", disable=not trainer.progress, leave=False)
     with trainer.stop_on_sigint(), bar:
         while trainer.step < end and not trainer._stop:
             trainer.collect(explore=False)

@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import LearnedPolicy
+from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
 from training.checkpoints import (
@@ -223,7 +223,9 @@ class Trainer:
             self.runlog.open_csv(truncate_after=None)
             self._begin()
         self._started = True
-        bar = tqdm(total=end, initial=self.step, desc=f"{cfg.algo} {cfg.scene}", unit="step", disable=not self.progress)
+        bar = progress_report(
+            total=end, initial=self.step, desc=f"{cfg.algo} {cfg.scene}", unit="step", disable=not self.progress
+        )
         t_log, step_log = time.perf_counter(), self.step
         last_eval: dict[str, Any] = {}
         with self.stop_on_sigint(), bar:
@@ -327,7 +329,7 @@ class Trainer:
                 "transitions": len(demos),
                 "success": demos.successes / max(demos.episodes, 1),
             }
-            for _ in tqdm(
+            for _ in progress_report(
                 range(cfg.pretrain_updates),
                 desc="pretraining on demonstrations",
                 unit="upd",
