@@ -61,7 +61,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
-from deck_sim.agents import AGENTS  # noqa: E402
+from deck_sim.agents import AGENTS, names  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import (  # noqa: E402
     SHIPPED_ALGOS,
@@ -76,6 +76,8 @@ from training.loop import shipped_actor  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
 HELD_OUT_SEED = 1000
+DDPG_ALGOS = names(trainer="ddpg")
+"""The agents trained by ``training.ddpg`` (MDDPG, DDPG); the others by stable-baselines3."""
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
 PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
 README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.py) -->", "<!-- shipped-table: end -->")
@@ -162,7 +164,7 @@ def run_config(scene: str, algo: str, steps: int, seed: int, fields: dict[str, A
     ``deck-sim train --recipe <scene> --algo <algo> --seed <seed> --print-config`` prints the same) or the keyword
     arguments of ``train_baseline`` (DQN, A2C), ``steps`` and ``fields`` applied."""
     recipe = load_recipe(scene)
-    if algo in ("mddpg", "ddpg"):
+    if algo in DDPG_ALGOS:
         return recipe.config(algo, seed, **{**fields, "total_steps": steps})
     return {"algo": algo, "scene": scene, "seed": seed, **recipe.baseline_kwargs(algo), "steps": steps}
 
@@ -172,7 +174,7 @@ def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[
     if (run / "actor.npz").exists():
         return
     plan = run_config(scene, algo, steps, seed, fields)
-    if algo in ("mddpg", "ddpg"):
+    if algo in DDPG_ALGOS:
         from training.loop import Trainer
 
         resume = (run / "checkpoint.pt").exists()
@@ -240,7 +242,7 @@ def main() -> None:
                         help="training seeds, comma-separated (default: the scene's recipe); several seeds ship "
                              "the mean action of their actors (MDDPG and DDPG only)")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
-    parser.add_argument("--out", default="runs/learning", help="run folders (shared with benchmarks/learning.py)")
+    parser.add_argument("--out", default="runs/learning", help="run folders, <out>/<scene>-<algo>-seed<seed>")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
     mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")
@@ -324,7 +326,7 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
-            "recipe": f"training/recipes/{scene}.toml" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}",
+            "recipe": f"training/recipes/{scene}.toml" if algo in DDPG_ALGOS else f"stable-baselines3 {algo}",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
@@ -367,8 +369,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "the file holds each run's actor and acts by the mean of their actions (`deck_sim.policies.EnsemblePolicy`).",
         "DQN and A2C are stable-baselines3 runs",
         "(`training.baselines`) exported to numpy. A run that ends with the cloning fit (`polish`) ships its final,",
-        "fitted actor (`training.loop.shipped_actor`); any other run, and any file shipped before that rule, the",
-        "actor of its best periodic evaluation (seed-500 episodes): the column `actor` says which. Held-out:",
+        "fitted actor (`training.loop.shipped_actor`); any other run the actor of its best periodic evaluation",
+        "(seed-500 episodes): the column `actor` says which. Held-out:",
         "consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
         "(never a training, demonstration or model-selection episode). Training time: wall-clock of the runs, summed,",
@@ -381,8 +383,7 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
-        # (records from before the recipe was written down: the first recipe of each kind of agent)
-        recipe = r.get("recipe") or (f"tuned-{algo}" if algo in ("mddpg", "ddpg") else f"stable-baselines3 {algo}")
+        recipe = f"`training/recipes/{scene}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
         actor = "final, fitted" if meta.get("polished", False) else f"best evaluation ({r['selected_at_step']} steps)"

@@ -64,8 +64,12 @@ def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
     if isinstance(planned, TrainConfig):
         assert printed == json.loads(json.dumps(planned.to_dict()))
         assert printed["extra"]["recipe"] == scene
-    else:
-        assert printed == planned and printed["steps"] == load_recipe(scene).steps(algo)
+    else:  # the keywords of train_baseline, as the config it builds from them
+        from training.baseline_config import baseline_config
+
+        fields = {k: v for k, v in planned.items() if k not in ("algo", "steps")}
+        assert printed == baseline_config(algo, **fields, total_steps=planned["steps"]).to_dict()
+        assert printed["total_steps"] == load_recipe(scene).steps(algo)
 
 
 def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(capsys):

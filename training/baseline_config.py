@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from training.config import ConfigError
+from training.config import ConfigError, field_value
 
 
 @dataclass
@@ -66,9 +67,9 @@ class BaselineConfig:
     def validate(self) -> BaselineConfig:
         """Raise ``ConfigError`` naming the first field of the wrong type or with an impossible value; return self.
         An integer is taken where a float is expected (and stored as a float)."""
-        defaults = {f.name: _default(f) for f in dataclasses.fields(self)}
-        for name, default in defaults.items():
-            setattr(self, name, _checked_type(name, getattr(self, name), default))
+        hints = typing.get_type_hints(type(self))
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, field_value(f.name, getattr(self, f.name), hints[f.name]))
         if not 0 <= self.seed < 4_000:
             raise ConfigError(f"seed: must lie in [0, 4000) (episode seeds must fit in 32 bits), got {self.seed!r}")
         for name in ("total_steps", "eval_episodes", "log_every", *self._at_least_one):
@@ -228,30 +229,3 @@ def baseline_config(algo: str, **fields: Any) -> BaselineConfig:
     if algo not in BASELINE_CONFIGS:
         raise ConfigError(f"algo: expected one of {', '.join(BASELINE_CONFIGS)}, got {algo!r}")
     return BASELINE_CONFIGS[algo].from_dict(fields)
-
-
-def _default(f: dataclasses.Field) -> Any:
-    return f.default_factory() if f.default is dataclasses.MISSING else f.default
-
-
-def _checked_type(name: str, value: Any, default: Any) -> Any:
-    """``value`` if it has the type of the field's ``default`` (an int where a float is expected becomes a float,
-    a list of ints where a tuple is expected a tuple), else ``ConfigError`` naming the field."""
-    if isinstance(default, bool):
-        ok, kind = isinstance(value, bool), "true or false"
-    elif isinstance(default, int):
-        ok, kind = isinstance(value, int) and not isinstance(value, bool), "an integer"
-    elif isinstance(default, float):
-        ok, kind = isinstance(value, (int, float)) and not isinstance(value, bool), "a number"
-        value = float(value) if ok else value
-    elif isinstance(default, str):
-        ok, kind = isinstance(value, str), "a string"
-    elif isinstance(default, tuple):
-        ok = isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-        kind = "a list of integers"
-        value = tuple(value) if ok else value
-    else:
-        ok, kind = isinstance(value, dict), "a table of fields"
-    if not ok:
-        raise ConfigError(f"{name}: expected {kind}, got {value!r}")
-    return value

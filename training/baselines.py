@@ -33,6 +33,7 @@ import gymnasium
 import numpy as np
 
 import deck_sim
+from deck_sim import agents
 from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy
 from deck_sim.progress import progress as progress_report
@@ -46,7 +47,7 @@ log = logging.getLogger(__name__)
 
 HEADINGS = 8
 SPEEDS = (0.5, 1.0)
-BASELINES = ("dqn", "a2c")
+BASELINES = agents.names(trainer="sb3")
 
 
 def discrete_actions() -> np.ndarray:

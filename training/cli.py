@@ -7,6 +7,7 @@ group; training needs the ``train`` extra (torch, stable-baselines3, TensorBoard
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import re
 import sys
@@ -17,27 +18,36 @@ from deck_sim import agents
 from deck_sim.cli._common import add_command, parse_assignments
 
 
-def _require_torch() -> None:
-    """Raise ``ValueError`` with the install command if torch is missing (the CLI turns it into exit code 2)."""
-    try:
-        import torch  # noqa: F401
-    except ModuleNotFoundError:
+def _require_training(algo: str) -> None:
+    """Raise ``ValueError`` with the install command if a package of the ``train`` extra that ``algo`` needs is
+    missing (the CLI turns it into exit code 2 before anything is written)."""
+    needed = ["torch", "tensorboard"] + (["stable_baselines3"] if agents.AGENTS[algo].trainer == "sb3" else [])
+    missing = [name for name in needed if importlib.util.find_spec(name) is None]
+    if missing:
         raise ValueError(
-            "training needs the train extra: pip install torch==2.13.0 && pip install -e '.[train]' "
-            "(torch 2.13.0 first: an unpinned torch may pull a CUDA build of several GB)"
-        ) from None
+            f"training {algo} needs {', '.join(missing)} (the train extra): pip install torch==2.13.0 && "
+            "pip install -e '.[train]' (torch 2.13.0 first: an unpinned torch may pull a CUDA build of several GB)"
+        )
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an agent into a run folder (or continue one with ``--resume``) and print its held-out figures."""
-    _require_torch()
+    _require_training(args.algo)
     from training.config import ConfigError
     from training.loop import CheckpointError
 
     try:
         out, config, baseline = _plan_run(args)
         if args.print_config:
-            shown = config.to_dict() if config is not None else baseline
+            if config is not None:
+                shown = config.to_dict()
+            else:  # the config train_baseline will build from these keywords
+                from training.baseline_config import baseline_config
+
+                fields = {k: v for k, v in baseline.items() if k not in ("algo", "steps")}
+                if baseline["steps"] is not None:
+                    fields["total_steps"] = baseline["steps"]
+                shown = baseline_config(args.algo, **fields).to_dict()
             print(json.dumps(shown, indent=2, sort_keys=True))
             return 0
         if config is not None:
@@ -103,9 +113,10 @@ def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | Non
     label = recipe.name if recipe is not None else Path(scene).stem
     out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{label}-seed{args.seed}"
     changes = parse_assignments(args.set)
-    flags = sorted({"algo", "scene", "seed"} & set(changes))
+    flags = sorted({"algo", "scene", "seed", "steps", "total_steps"} & set(changes))
     if flags:
-        raise ConfigError(f"--set {flags[0]}=...: use --{flags[0]} for the run's {', '.join(flags)}")
+        flag = "steps" if flags[0] == "total_steps" else flags[0]
+        raise ConfigError(f"--set {flags[0]}=...: use --{flag}")
     if agents.AGENTS[args.algo].trainer == "sb3":
         baseline = recipe.baseline_kwargs(args.algo) if recipe is not None else {"steps": None}
         if args.steps is not None:

@@ -3,12 +3,12 @@
 The run writes its ``TrainConfig`` out as ``config.json`` beside its logs and checkpoints. Two presets name the
 recipes compared in ``benchmarks/learning.py``: ``paper`` (plain DDPG as the paper describes it: one environment,
 one update per step, Gaussian noise, no demonstrations, no normalisation) and ``tuned`` (the switches
-measured to pay on the physical deck; see the README's learning section).
+measured to pay on the physical deck; ``docs/training.md``, "Switches and their measured effects").
 
 Seeds: training episode ``k`` of environment ``i`` in a run seeded ``s`` is reset with
 ``train_episode_seed(s, i, k)``, demonstration episode ``k`` with ``demo_episode_seed(s, k)``; both lie at or above
 ``TRAIN_SEED_BASE`` (10^6). Evaluation plays consecutive episodes of one environment seeded below it
-(``eval_seed``, default 500; the README's held-out figure uses ``deck-sim run --seed 1000``), so no evaluation
+(``eval_seed``, default 500; the shipped agents' held-out figures use ``deck-sim run --seed 1000``), so no evaluation
 episode is a training episode.
 """
 
@@ -91,8 +91,9 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def _typed(name: str, value: Any, hint: Any) -> Any:
-    """``value`` as a field of type ``hint`` wants it, or ``ConfigError`` naming the field and what it expects."""
+def field_value(name: str, value: Any, hint: Any) -> Any:
+    """``value`` as a field of type ``hint`` wants it (integers taken for floats, lists for tuples), or
+    ``ConfigError`` naming the field and what it expects."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if hint is Any:
         return value
@@ -100,7 +101,7 @@ def _typed(name: str, value: Any, hint: Any) -> Any:
         if value is None and type(None) in args:
             return None
         (inner,) = (a for a in args if a is not type(None))
-        return _typed(name, value, inner)
+        return field_value(name, value, inner)
     if hint is bool and isinstance(value, bool):
         return value
     if hint is int and isinstance(value, int) and not isinstance(value, bool):
@@ -112,14 +113,14 @@ def _typed(name: str, value: Any, hint: Any) -> Any:
     if origin is dict and isinstance(value, dict):
         return value
     if origin is tuple and isinstance(value, list | tuple):
-        return tuple(_typed(f"{name}[{i}]", v, args[0]) for i, v in enumerate(value))
+        return tuple(field_value(f"{name}[{i}]", v, args[0]) for i, v in enumerate(value))
     if hint is CurriculumStage and isinstance(value, CurriculumStage):
         return value
     if hint is CurriculumStage and isinstance(value, dict):
         fields = typing.get_type_hints(CurriculumStage)
         if set(value) != set(fields):
             raise ConfigError(f"{name}: expected the fields {', '.join(fields)}, got {', '.join(value) or 'none'}")
-        return CurriculumStage(**{k: _typed(f"{name}.{k}", v, fields[k]) for k, v in value.items()})
+        return CurriculumStage(**{k: field_value(f"{name}.{k}", v, fields[k]) for k, v in value.items()})
     expected = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
         hint, "a table" if origin is dict else "a list" if origin is tuple else getattr(hint, "__name__", str(hint))
     )
@@ -238,8 +239,8 @@ class TrainConfig:
     """After the last environment step, fit a freshly initialised actor to the planner's action on every labelled
     transition of the replay buffer (demonstrations and relabelled agent states) for this many epochs: the cloning
     loss alone, minibatches of ``batch_size``, Adam from ``polish_lr`` annealed to 0 by a cosine. This is DAgger's
-    supervised step on the aggregated data (its effect on deck 1 and 2 is measured in ``docs/training.md``, "More
-    data per update, and a final cloning fit"). 0: off. A finished run can be polished later
+    supervised step on the aggregated data (its measured effect: ``docs/training.md``, "Switches and their
+    measured effects"). 0: off. A finished run can be polished later
     (``--resume --set polish_epochs=N``)."""
     polish_lr: float = 1e-3
     """Starting learning rate of the final cloning fit (``polish_epochs``)."""
@@ -355,7 +356,7 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
         hints = typing.get_type_hints(cls)
-        return cls(**{name: _typed(name, value, hints[name]) for name, value in d.items()}).validate()
+        return cls(**{name: field_value(name, value, hints[name]) for name, value in d.items()}).validate()
 
     def save(self, path: str | Path) -> None:
         """Write the config as JSON."""

@@ -69,7 +69,7 @@ def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
     A run whose final ``actor.npz`` is the cloning fit's (its own record says ``polished``) ships that file; any
     other run (stable-baselines3's, or one without the fit) the actor of its best periodic evaluation,
     ``actor_best.npz``. Picking the best of several short evaluations picks noise as much as skill: the two are
-    compared on held-out episodes in ``docs/training.md``, "The best of ten evaluations against the final actor".
+    compared on held-out episodes in ``docs/training.md``, "The run folder".
     """
     run = Path(run_dir)
     final = run / "actor.npz"

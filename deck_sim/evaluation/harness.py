@@ -35,8 +35,6 @@ DEFAULT_SEED = 100_000
 BACKENDS = ("serial", "process", "ray")
 
 
-
-
 class EvalError(ValueError):
     """An evaluation was asked for something it cannot do: an unknown agent, backend or seed range."""
 

@@ -321,8 +321,8 @@ def _check_layers(weights: Sequence[np.ndarray], biases: Sequence[np.ndarray], i
 class EnsemblePolicy:
     """Several actors that read one observation, acting together: the mean of their actions.
 
-    Averaging the actions of actors trained from different seeds cancels part of each one's own errors (on deck 2
-    the mean of two MDDPG seeds' actors reached the goal more often than either alone: ``docs/training.md``). Every
+    Averaging the actions of actors trained from different seeds cancels part of each one's own errors (measured
+    in ``docs/training.md``, "Switches and their measured effects"). Every
     member must be a ``LearnedPolicy`` with a continuous head (``tanh`` or ``clip``: a mean of DQN's argmax rows
     is not DQN's policy) trained on the same observation keys and shapes and the same ``scene_overrides``, so one
     environment serves them all; the mean of actions in [-1, 1] stays in [-1, 1].

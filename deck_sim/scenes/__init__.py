@@ -416,11 +416,12 @@ def scene_names() -> list[str]:
     return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
 
 
-def _scene_path(name_or_path: str | Path, relative_to: Path = SCENE_DIR) -> Path:
-    """The file of a shipped scene's name (``deck1``), or a ``.toml`` path (relative to ``relative_to``)."""
+def _scene_path(name_or_path: str | Path, relative_to: Path | None = None) -> Path:
+    """The file of a shipped scene's name (``deck1``), or a ``.toml`` path (relative to ``relative_to`` if given,
+    else to the working directory)."""
     path = Path(name_or_path)
     if path.suffix == ".toml":
-        return path if path.is_absolute() or relative_to == SCENE_DIR else relative_to / path
+        return path if path.is_absolute() or relative_to is None else relative_to / path
     if str(name_or_path) not in scene_names():
         raise SceneSpecError(f"unknown scene {str(name_or_path)!r}; known scenes: {', '.join(scene_names())}")
     return SCENE_DIR / f"{name_or_path}.toml"
