@@ -39,6 +39,7 @@ def _observations(n: int = 40, seed: int = 3) -> list[dict[str, np.ndarray]]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["dqn", "a2c"])
 def test_the_numpy_export_acts_as_sb3_predicts(runs, algo):
     from training.baselines import discrete_actions, load_baseline
@@ -125,6 +126,7 @@ def _shipped_agents() -> dict[str, dict[str, dict]]:
     return {scene: ({"mddpg": r} if "success" in r else r) for scene, r in report.items()}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
     from deck_sim.policies import SHIPPED_ALGOS, policy_overrides, shipped_policy_path

@@ -8,6 +8,7 @@ import pytest
 from training_runs import csv_rows
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["dqn", "a2c"])
 def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
     from training.baselines import discrete_actions, load_baseline, train_baseline
@@ -69,6 +70,7 @@ def test_the_baseline_config_names_a_bad_field_before_any_run_folder_is_made(tmp
         DQNConfig.from_dict(a2c.to_dict())
 
 
+@pytest.mark.slow
 def test_a_baseline_run_saves_its_config_and_resumes_a_run_of_the_step_count_format(tmp_path):
     """``config.json`` holds every field of the run's config; a run folder whose ``config.json`` gives the run's
     length as ``steps`` (and its SB3 keywords under ``sb3``) resumes, its actor's record giving ``total_steps``."""

@@ -42,6 +42,7 @@ def test_a_checkpoint_from_before_a_new_field_resumes_with_its_default(tmp_path)
     assert out["step"] == 60
 
 
+@pytest.mark.slow
 def test_bad_checkpoints_give_clear_errors(tmp_path):
     run = tmp_path / "run"
     Trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), run, progress=False).train()

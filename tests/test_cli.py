@@ -136,6 +136,7 @@ def test_version_and_every_subcommand_help_opens_with_what_it_does(capsys):
             assert "(default: deck1)" in text and "(default: 20)" in text
 
 
+@pytest.mark.slow
 def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path):
     err = tmp_path / "stderr.txt"
     with open(err, "w") as f:

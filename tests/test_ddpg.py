@@ -190,6 +190,7 @@ def test_left_out_movers_read_as_beyond_the_near_field():
     np.testing.assert_array_equal(padded[0, sl["dynamic_obstacles"]][2:], FAR)
 
 
+@pytest.mark.slow
 def test_an_agent_without_prediction_is_taught_by_the_planner_that_sees_the_forecasts():
     """Relabelling for DDPG (predictor ``none``): the planner plans on the MPC forecasts, as it does for MDDPG, and
     the agent's observation is the plain one (no ``predicted`` part), equal to a ``none`` environment's."""

@@ -68,6 +68,7 @@ def test_the_ensemble_acts_by_the_mean_of_its_members_actions():
     assert ensemble.scene_overrides == base.scene_overrides
 
 
+@pytest.mark.slow
 def test_an_ensemble_file_round_trips_and_plays_an_episode(tmp_path):
     base = _actor()
     ensemble = EnsemblePolicy([base, _perturbed(base, 1, scale=0.05)])

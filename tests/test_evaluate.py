@@ -17,6 +17,7 @@ def serial():
     return evaluate(EvalConfig(backend="serial", **SMALL))
 
 
+@pytest.mark.slow
 def test_process_pool_gives_the_serial_results_and_each_unit_its_log(serial, tmp_path):
     from deck_sim.recording import EpisodeLog
 
@@ -30,6 +31,7 @@ def test_process_pool_gives_the_serial_results_and_each_unit_its_log(serial, tmp
     assert logged.reward == serial.episodes[2]["reward"]  # the logged episode is the one measured
 
 
+@pytest.mark.slow
 def test_ray_gives_the_serial_results_and_each_unit_its_log(serial, tmp_path):
     pytest.importorskip("ray")
     from deck_sim.recording import EpisodeLog
@@ -162,6 +164,7 @@ def test_a_missing_actor_file_fails_before_any_episode(tmp_path):
         evaluate(EvalConfig(agents=(f"mine={tmp_path / 'none.npz'}",), scenes=("deck1",), episodes=1))
 
 
+@pytest.mark.slow
 def test_cli_eval_writes_tables_logs_and_trajectory_plots(tmp_path, capsys):
     out = tmp_path / "ev"
     rc = main(

@@ -1,6 +1,7 @@
 """The scripted full-knowledge planner on real physics: it reaches targets and yields to movers."""
 
 import numpy as np
+import pytest
 
 import deck_sim
 from deck_sim.policies import ScriptedPolicy, make_policy
@@ -16,6 +17,7 @@ def test_scripted_planner_reaches_the_target_on_an_empty_deck():
         assert r.path_length >= r.start_target_distance - 2 * env.task.spec.agent.goal_radius
 
 
+@pytest.mark.slow
 def test_scripted_planner_beats_going_straight_on_deck1():
     scripted_env = deck_sim.load("deck1", seed=21, episode__predictor="oracle")
     scripted = [run_episode(scripted_env, ScriptedPolicy(scripted_env), k).outcome for k in range(4)]
@@ -55,6 +57,7 @@ def test_the_planner_view_carries_the_aircraft_body_and_limits_and_none_for_a_wa
     assert walker.agent_circles.shape == (0, 3) and walker.agent_limits is None
 
 
+@pytest.mark.slow
 def test_the_trainer_teaches_with_the_body_planner_when_asked():
     from training.config import arm_config
     from training.runners import InlineEnvs

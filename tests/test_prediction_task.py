@@ -76,6 +76,7 @@ def test_fallback_counter_is_an_int_and_zero_on_normal_tracks(mpc_run) -> None:
         assert info["predictor_fallbacks_total"] == 0
 
 
+@pytest.mark.slow
 def test_mpc_differs_from_none_and_from_constant_velocity(mpc_run) -> None:
     _, mpc_obs, mpc_infos = mpc_run
     _, none_obs, none_infos = _episode("none")

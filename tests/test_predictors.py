@@ -101,6 +101,7 @@ def test_oracle_sees_the_true_future_without_disturbing_the_episode():
             np.testing.assert_allclose(predicted[k][:, j - 1], truth[k + j], atol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 5])
 def test_the_episode_does_not_depend_on_the_predictor(seed):
     # movers that yield to the agent keep timers (how long they waited on it, when they last gave up); simulating

@@ -423,6 +423,7 @@ def test_cli_info_plot_export_and_recover(recorded, tmp_path, capsys):
     assert EpisodeLog(tmp_path / "fixed.mcap").episodes
 
 
+@pytest.mark.slow
 def test_run_records_every_episode_by_default(tmp_path):
     out = tmp_path / "run"
     args = ["run", "--scene", "deck1", "--policy", "zero", "--episodes", "2", "--seed", "1", "--quiet"]

@@ -83,6 +83,7 @@ def test_mpc_leaves_its_reference_to_pass_a_mover_standing_on_it():
     assert a[1] < 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,planner", [("apf", APFPlanner), ("astar", AStarPlanner), ("mpc", MPCPlanner)])
 def test_every_reference_reaches_deck1_targets_among_movers(name, planner):
     env = deck_sim.load("deck1", seed=3, episode__predictor="mpc")

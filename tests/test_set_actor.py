@@ -217,6 +217,7 @@ def _short(**fields) -> TrainConfig:  # noqa: ANN003
     return short_config(**{**base, **fields})
 
 
+@pytest.mark.slow
 def test_a_set_actor_run_resumes_exactly_polishes_and_exports_an_actor_that_acts(tmp_path):
     import deck_sim
 

@@ -10,6 +10,7 @@ from deck_sim.scenes import load_scene
 PAPER_COUNTS = {"deck1": (15, 5), "deck2": (15, 9), "square": (28, 13)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_same_seed_gives_bit_identical_episodes(scene):
     a = deck_sim.load(scene, seed=7)
@@ -22,6 +23,7 @@ def test_same_seed_gives_bit_identical_episodes(scene):
             np.testing.assert_array_equal(oa[key], ob[key])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_the_plain_observation_path_gives_composers_observations(scene):
     from deck_sim.environment import DeckEnvironment, make_environment
@@ -46,6 +48,7 @@ def test_the_plain_observation_path_gives_composers_observations(scene):
         np.testing.assert_array_equal(held[key], first[key])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_different_seeds_give_different_layouts(scene):
     a = deck_sim.load(scene, seed=1).reset().observation
@@ -120,6 +123,7 @@ def test_step_info_reports_the_step(envs, scene):
     assert set(info["reward_terms"]) == {"r1", "r2", "r3", "r4", "total"}
 
 
+@pytest.mark.slow
 def test_obstacle_shape_observation_gives_nearest_points_and_headings():
     import deck_sim
 
@@ -169,6 +173,7 @@ def test_mover_size_observation_follows_the_movers_order():
     assert lengths[-1] > 17.0 and lengths[0] < 5.0
 
 
+@pytest.mark.slow
 def test_near_obstacles_observation_gives_each_footprints_nearest_point_clipped_to_the_near_field():
     import deck_sim
     from deck_sim.geometry import clip_length
@@ -247,6 +252,7 @@ def test_near_observation_clips_the_target_and_the_edges_to_a_few_steps_reach():
     assert clipped > 0 and inside > 0 and at_edge > 0
 
 
+@pytest.mark.slow
 def test_route_observation_follows_the_planners_way_round_the_statics():
     from deck_sim.control.planners import ScriptedPlanner, _point_along
     from deck_sim.policies import ScriptedPolicy
@@ -325,6 +331,7 @@ def test_agent_frame_turns_the_observation_and_the_action_into_the_agents_axes()
         deck_sim.load("deck1", episode__frame="body")
 
 
+@pytest.mark.slow
 def test_the_scripted_planner_drives_the_same_path_in_either_frame():
     from deck_sim.policies import ScriptedPolicy
     from deck_sim.rollout import run_episode

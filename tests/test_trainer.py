@@ -26,6 +26,7 @@ def test_two_seeded_runs_give_identical_losses_and_actions(tmp_path):
     assert_same_run(a, b)
 
 
+@pytest.mark.slow
 def test_a_short_run_on_an_empty_deck_beats_random(tmp_path):
     import deck_sim
     from deck_sim.metrics import summarize
@@ -54,6 +55,7 @@ def test_a_short_run_on_an_empty_deck_beats_random(tmp_path):
     assert learned["mean_reward"] > rand["mean_reward"] + 50.0
 
 
+@pytest.mark.slow
 def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
     from training.config import CurriculumStage
 
@@ -76,6 +78,7 @@ def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
     assert TrainConfig.from_dict(json.loads(json.dumps(config))).curriculum == stages  # saved and read back
 
 
+@pytest.mark.slow
 def test_exported_actor_acts_like_the_agent(tmp_path):
     from deck_sim.policies import LearnedPolicy
 
@@ -130,6 +133,7 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
         policy.flatten(env.reset().observation)
 
 
+@pytest.mark.slow
 def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
     import deck_sim
     from deck_sim.cli import main
@@ -159,6 +163,7 @@ def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
     assert "bad.npz" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_the_shipped_policies_load_and_act_on_their_scene(scene):
     import deck_sim
