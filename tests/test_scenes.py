@@ -111,8 +111,8 @@ def test_unknown_site_is_named(tmp_path):
     text = (SCENE_DIR / "deck1.toml").read_text().replace('"start_1",', '"start_99",')
     path = tmp_path / "deck1y.toml"
     path.write_text(text)
-    with pytest.raises(KeyError, match="no site 'start_99'"):
-        deck_sim.load(path)
+    with pytest.raises(SceneSpecError, match=r"\[agent\]\.start_sites\[0\]: the deck arena has no site 'start_99'"):
+        deck_sim.load(path)  # at load, before any model is built
 
 
 NUMBER_FIELDS = [

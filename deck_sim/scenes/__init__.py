@@ -1,8 +1,10 @@
 """Scene specifications as data: ``deck1``, ``deck2`` and ``square`` TOML files, validated on load.
 
 Every constant of a scene lives in its TOML file: obstacle counts, where things spawn, the movers' speeds, the
-episode limits and every reward constant (paper eq. 10-16). ``load_scene`` checks each field's type and range and
-raises ``SceneSpecError`` naming the file, the field and the offending value.
+episode limits and every reward constant (paper eq. 10-16). ``load_scene`` checks each field's type and bounds (each
+field's docstring gives them; sites, slots, distances and speeds are checked against the arena and the vehicles,
+``deck_sim.scenes.arena_facts``) and raises ``SceneSpecError`` naming the file, the field and the offending value,
+before any model is built.
 """
 
 from __future__ import annotations
@@ -17,11 +19,67 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from deck_sim.scenes.arena_facts import ArenaFacts, arena_facts, vehicle_top_speeds
+
 SCENE_DIR = Path(__file__).parent
 
 
 class SceneSpecError(ValueError):
     """A scene name is unknown or a scene file is malformed; the message names the field and value."""
+
+
+MIN_PHYSICS_TIMESTEP = 0.001
+"""Seconds: the smallest ``episode.physics_timestep``. Smaller steps are as stable, but every control step then runs
+more than ``control_period / 0.001`` MuJoCo steps; the bound keeps a typo (a timestep in milliseconds, 1e-300) from
+hanging a run."""
+
+MAX_PHYSICS_TIMESTEP = 1 / 32
+"""Seconds: the largest ``episode.physics_timestep`` the models are stable and faithful at. At 1/32 s every model
+check of ``tests/test_physics.py`` passes (the aircraft taxis straight, turns at its kinematic rate, brakes to a stop
+and is turned round by the tracker; the tractor drives at its wheel speed), and the scripted policy's episodes on
+every scene keep every vehicle within its top speed. At the next timesteps that divide the 0.5 s decision the models
+fail: at 1/24 s the tractor's speed ripples beyond 3 % of its wheel speed, at 1/20 s the aircraft creeps on under
+full brakes, at 1/8 s the tracker can no longer turn the aircraft round, and at 1/2 s the aircraft run away without
+MuJoCo warning of it. ``tests/test_scene_bounds.py`` shows each:
+``test_the_models_hold_up_to_the_largest_timestep_and_not_beyond`` and
+``test_a_runaway_at_a_coarse_timestep_is_flagged_as_divergence``."""
+
+MAX_TIME_LIMIT = 3600.0
+"""Seconds: the longest ``episode.time_limit`` and ``movers.dwell_range``: an hour of simulated time, far more than
+an episode on the deck or the square needs (``deck_sim.registration.episode_decisions`` counts an episode's
+decisions step by step)."""
+
+MAX_MOVERS = 64
+"""The most movers a scene may have. Every body starts at the origin when the model is compiled, and MuJoCo's
+memory for their contacts there grows with the square of their number; the bound keeps the compilation within it
+for any mix of vehicles (``tests/test_scene_bounds.py`` builds the largest mixes) and a layout placeable."""
+
+MAX_TAXIING_AIRCRAFT = 16
+"""The most taxiing aircraft among the movers: an aircraft has several large collision geoms, and two dozen of them
+overlapping at the origin exhaust MuJoCo's memory when the model is compiled (the mover total stays within
+``MAX_MOVERS``)."""
+
+MAX_SCATTERED = 64
+"""The most standing groups ``static.scattered`` may place."""
+
+MAX_HISTORY = 1000
+"""The most past samples ``episode.history`` may keep per mover (the task shifts them every control step)."""
+
+MAX_HORIZON = 100
+"""The most predicted steps ``episode.horizon`` may ask for (the observation holds them for every mover and the
+MPC predictor's graph grows with them)."""
+
+MAX_ACCEL = 9.81
+"""m/s^2: the largest ``movers.accel``, ``movers.decel`` and ``movers.agent_yield_braking``: one g, more than any
+deck vehicle or walker brakes or speeds up with (their actuators cap it lower)."""
+
+MIN_ACCEL = 0.05
+"""m/s^2: the smallest ``movers.accel`` and ``movers.decel``. A mover gains ``accel`` m/s per second and, planning
+to stop at its spot, drives no faster than sqrt(2 * decel * d) at d metres from it: much below this bound movers
+crawl over the arena's distances or never get going."""
+
+MAX_TURN_RATE = 2 * math.pi
+"""rad/s: the largest ``movers.turn_rate``, a full turn per second (the actuators cap what the vehicles reach)."""
 
 
 @dataclass(frozen=True)
@@ -31,25 +89,33 @@ class AgentSpec:
     vehicle: Literal["aircraft", "pedestrian"]
     """Vehicle model: the wheeled ``aircraft`` (deck) or a holonomic ``pedestrian`` (square)."""
     start_sites: tuple[str, ...]
-    """Names of arena sites the agent starts at (one drawn per episode)."""
+    """Names of arena sites the agent starts at (one drawn per episode); at least one, each a site of the arena."""
     target_sites: tuple[str, ...]
-    """Names of arena sites that may be the target (one drawn per episode, within the distance bounds)."""
+    """Names of arena sites that may be the target (one drawn per episode, within the distance bounds); at least
+    one, each a site of the arena."""
     reach: float
-    """Metres: an action of norm 1 asks for this displacement over one decision period."""
+    """Metres: an action of norm 1 asks for this displacement over one decision period. > 0 and at most the
+    vehicle's top speed times ``episode.control_period`` (``arena_facts.vehicle_top_speeds``; the tracker caps the
+    speed there, so a longer reach would not be what the action asks)."""
     goal_radius: float
-    """Metres: the episode succeeds when the agent's reference point is this close to the target."""
+    """Metres: the episode succeeds when the agent's reference point is this close to the target. > 0 and at most
+    the arena's diagonal."""
     radius: float
-    """Metres: radius of the disc that stands for the agent in clearance, reward and planning."""
+    """Metres: radius of the disc that stands for the agent in clearance, reward and planning. > 0 and at most half
+    the surface's shorter side (the disc fits on it)."""
     start_jitter: float = 0.0
-    """Metres: uniform jitter of the start position in x and y."""
+    """Metres: uniform jitter of the start position in x and y. >= 0, and every start site jittered this far stays
+    on the surface."""
     yaw_jitter: float = 0.0
-    """Radians: uniform jitter of the start heading."""
+    """Radians: uniform jitter of the start heading, in [0, pi]."""
     target_jitter: float = 0.0
-    """Metres: uniform jitter of the target position in x and y."""
+    """Metres: uniform jitter of the target position in x and y. >= 0, and every target site jittered this far
+    stays on the surface."""
     min_target_distance: float = 0.0
-    """Metres: lower bound on the straight-line start-target distance."""
+    """Metres: lower bound on the straight-line start-target distance; >= 0, and from every start site some target
+    site lies within the two bounds (give or take the jitters)."""
     max_target_distance: float = 1e9
-    """Metres: upper bound on the straight-line start-target distance."""
+    """Metres: upper bound on the straight-line start-target distance; >= ``min_target_distance``."""
 
 
 @dataclass(frozen=True)
@@ -57,15 +123,21 @@ class StaticSpec:
     """Static obstacles: parked aircraft or kiosks in named slots, plus standing groups placed at random."""
 
     slot_prefix: str
-    """Arena sites whose names start with this are the slots that slotted obstacles fill."""
+    """Arena sites whose names start with this are the slots that slotted obstacles fill. Not empty, and (with
+    ``slotted`` above 0) naming no start, target or spot site (an obstacle would stand on it)."""
     slotted: int
-    """How many slots are filled per episode (drawn without replacement)."""
+    """How many slots are filled per episode (drawn without replacement): 0 up to the number of slots."""
     slotted_kind: Literal["parked_aircraft", "kiosk"]
     """What stands in a slot."""
     scattered: int = 0
-    """How many standing groups are placed uniformly at random on free ground (rejection sampling)."""
+    """How many standing groups are placed uniformly at random on free ground (rejection sampling): 0 to
+    ``MAX_SCATTERED``, and 0 in a scene with aircraft (the agent's vehicle or ``movers.aircraft``): MuJoCo's
+    capsule-cylinder collision can return more contacts than it reserves room for when an aircraft's fuselage
+    (a capsule) lies across a group's cylinder, which aborts the simulation, and it does at once when the model is
+    compiled with every body at the origin."""
     scatter_clearance: float = 3.0
-    """Metres of free space kept between a scattered group and anything else, starts and targets included."""
+    """Metres of free space kept between a scattered group and anything else, starts and targets included; 0 up to
+    the arena's diagonal."""
 
     @property
     def count(self) -> int:
@@ -78,43 +150,51 @@ class MoverSpec:
     """Dynamic obstacles (paper's assumptions 1-3): go to a special spot, dwell a random time, go on."""
 
     tractors: int = 0
-    """Deck tractors (wheeled, differential drive)."""
+    """Deck tractors (wheeled, differential drive); >= 0, all movers together at most ``MAX_MOVERS``."""
     aircraft: int = 0
-    """Taxiing aircraft (the agent's own vehicle model, driven by a mover script)."""
+    """Taxiing aircraft (the agent's own vehicle model, driven by a mover script); 0 to ``MAX_TAXIING_AIRCRAFT``."""
     pedestrians: int = 0
-    """Walking pedestrians (holonomic)."""
+    """Walking pedestrians (holonomic); >= 0."""
     spots: tuple[str, ...] = ()
-    """Names of the special spots the movers travel between."""
+    """Names of the special spots the movers travel between: sites of the arena, no name twice, at least two when
+    there are movers."""
     speed_range: tuple[float, float] = (2.0, 4.0)
-    """m/s: each trip's cruise speed is drawn uniformly from this range."""
+    """m/s: each trip's cruise speed is drawn uniformly from this range; 0 <= min <= max, max > 0 and at most the
+    top speed of the slowest kind of mover in the scene (``arena_facts.vehicle_top_speeds``; of the fastest vehicle
+    in a scene without movers)."""
     dwell_range: tuple[float, float] = (3.0, 15.0)
-    """Seconds: each dwell at a spot lasts a uniform draw from this range."""
+    """Seconds: each dwell at a spot lasts a uniform draw from this range; 0 <= min <= max <= ``MAX_TIME_LIMIT``."""
     accel: float = 1.0
-    """m/s^2: acceleration the movers' scripts ask for (their actuators cap it physically too)."""
+    """m/s^2: acceleration the movers' scripts ask for (their actuators cap it physically too); in
+    [``MIN_ACCEL``, ``MAX_ACCEL``]."""
     decel: float = 1.0
-    """m/s^2: braking they plan with when stopping at a spot."""
+    """m/s^2: braking they plan with when stopping at a spot; in [``MIN_ACCEL``, ``MAX_ACCEL``]."""
     turn_rate: float = 0.6
-    """rad/s: largest turn rate the wheeled movers' scripts command."""
+    """rad/s: largest turn rate the wheeled movers' scripts command; in (0, ``MAX_TURN_RATE``]."""
     clearance: float = 3.0
-    """Metres: how far their planned routes stay from static obstacles (beyond their own radius)."""
+    """Metres: how far their planned routes stay from static obstacles (beyond their own radius); 0 up to the arena's
+    diagonal."""
     yield_distance: float = 8.0
-    """Metres: a mover brakes when another mover or the agent is this close ahead of it (0 disables)."""
+    """Metres: a mover brakes when another mover or the agent is this close ahead of it (0 disables); 0 up to the
+    arena's diagonal."""
     yield_to_agent: bool = True
     """Whether movers also yield to the agent (deck crews stop for a taxiing aircraft)."""
     agent_yield_distance: float = 6.0
     """Metres: a mover brakes at once when the agent is this close ahead of it (an emergency stop; keep it
-    short so that movers do not wait on an agent that waits on them)."""
+    short so that movers do not wait on an agent that waits on them); 0 up to the arena's diagonal."""
     agent_yield_braking: float = 0.0
     """m/s^2: with a value above 0, the emergency stop for the agent reaches ``agent_yield_distance`` plus the
     mover's stopping distance at this braking, v^2 / (2 * agent_yield_braking), with v its speed now (capped at the
     top of ``speed_range``), so a fast tractor starts braking earlier (the control period's delay, the agent's own
-    motion and how hard the vehicle really brakes are not in it); 0 (default) keeps the fixed reach."""
+    motion and how hard the vehicle really brakes are not in it); 0 (default) keeps the fixed reach. In
+    [0, ``MAX_ACCEL``]."""
     spawn_near_agent: int = 0
-    """How many movers start on free ground within ``near_radius`` of the agent instead of at spots."""
+    """How many movers start on free ground within ``near_radius`` of the agent instead of at spots; >= 0, and
+    with ``spawn_random`` at most the number of movers."""
     spawn_random: int = 0
-    """How many movers start on free ground anywhere (paper's deck 2: 4 placed at random)."""
+    """How many movers start on free ground anywhere (paper's deck 2: 4 placed at random); >= 0."""
     near_radius: float = 20.0
-    """Metres: radius around the agent's start for ``spawn_near_agent``."""
+    """Metres: radius around the agent's start for ``spawn_near_agent``; 0 up to the arena's diagonal."""
 
     @property
     def count(self) -> int:
@@ -124,33 +204,37 @@ class MoverSpec:
 
 @dataclass(frozen=True)
 class RewardSpec:
-    """Constants of the APF-shaped reward, paper eq. 10-16 (see ``deck_sim.tasks.rewards``)."""
+    """Constants of the APF-shaped reward, paper eq. 10-16 (see ``deck_sim.tasks.rewards``).
+
+    Every weighted term, and their sum, must stay a finite number."""
 
     attraction_max: float
-    """L, metres: cap of the target-attraction term r1 per step."""
+    """L, metres: cap of the target-attraction term r1 per step; >= ``attraction_min``."""
     attraction_min: float
-    """l, metres: floor of |r1| per step (the sign follows the progress)."""
+    """l, metres: floor of |r1| per step (the sign follows the progress); > 0."""
     repulsion_max: float
-    """H, metres: cap of the obstacle-repulsion term r2 per step."""
+    """H, metres: cap of the obstacle-repulsion term r2 per step; >= ``repulsion_min``."""
     repulsion_min: float
-    """h, metres: floor of |r2| per step inside the influence radius."""
+    """h, metres: floor of |r2| per step inside the influence radius; > 0."""
     influence_radius: float
-    """Metres of clearance within which the nearest obstacle repels (no r2 beyond)."""
+    """Metres of clearance within which the nearest obstacle repels (no r2 beyond); > 0, at most the arena's
+    diagonal."""
     collision: float = -50.0
-    """r3: reward on collision (and on leaving the deck)."""
+    """r3: reward on collision (and on leaving the deck); <= 0 (a penalty)."""
     goal: float = 200.0
-    """r4: reward on reaching the target."""
+    """r4: reward on reaching the target; >= 0."""
     w_attraction: float = 1.0
-    """lambda1: weight of r1."""
+    """lambda1: weight of r1; >= 0 (each weight's sign is its constant's)."""
     w_repulsion: float = 1.0
-    """lambda2: weight of r2."""
+    """lambda2: weight of r2; >= 0."""
     w_collision: float = 1.0
-    """lambda3: weight of r3."""
+    """lambda3: weight of r3; >= 0."""
     w_goal: float = 1.0
-    """lambda4: weight of r4."""
+    """lambda4: weight of r4; >= 0."""
     progress_deadband: float = 0.01
     """Metres: |progress| below this counts as none (r1 = 0, r2 = 0), so that a standing agent is not paid +l
-    or charged -l by numerical noise; the paper's d >= 0 branch is otherwise kept."""
+    or charged -l by numerical noise; the paper's d >= 0 branch is otherwise kept. >= 0 and below ``agent.reach``
+    (a full step's progress)."""
 
 
 @dataclass(frozen=True)
@@ -158,19 +242,25 @@ class EpisodeSpec:
     """Timing, history and prediction of the task."""
 
     time_limit: float
-    """Seconds of simulated time before the episode is truncated."""
+    """Seconds of simulated time before the episode is truncated; in (0, ``MAX_TIME_LIMIT``]."""
     control_period: float = 0.5
-    """Seconds between decisions (the paper's step)."""
+    """Seconds between decisions (the paper's step); in (0, ``time_limit``]."""
     physics_timestep: float = 0.02
-    """Seconds per MuJoCo step; must divide ``control_period``."""
+    """Seconds per MuJoCo step; in [``MIN_PHYSICS_TIMESTEP``, ``MAX_PHYSICS_TIMESTEP``] (the range the models are
+    stable at, see there) and must divide ``control_period``."""
     history: int = 10
-    """Samples of each mover's past positions kept for the predictor."""
+    """Samples of each mover's past positions kept for the predictor; 2 to ``MAX_HISTORY``, and at least the MPC
+    predictor's own ``history`` when ``predictor`` is ``mpc``."""
     horizon: int = 10
-    """Predicted steps N of each mover (at the control period)."""
+    """Predicted steps N of each mover (at the control period); 1 to ``MAX_HORIZON``."""
     predictor: Literal["none", "constant_velocity", "oracle", "mpc"] = "constant_velocity"
-    """Which predictor fills the observation's predicted part."""
+    """Which predictor fills the observation's predicted part. ``mpc`` also bounds the scene by the MPC predictor's
+    compiled capacity: at most its ``max_movers`` movers and ``max_spots`` spots
+    (``control.mpc_settings.MPCPredictorSettings``)."""
     collision_checks: int = 5
-    """Contact checks per control step (the fused physics substeps are split this many times)."""
+    """Contact checks per control step (the fused physics substeps are split this many times); 1 up to the number
+    of physics steps per control step."""
+
     obstacle_shape: bool = False
     """Also observe the shape of every obstacle: the nearest point of each static obstacle's and each mover's
     footprint (``static_nearest``, ``dynamic_nearest``, relative to the agent, in the same order as their centres)
@@ -199,7 +289,7 @@ class EpisodeSpec:
     clipped to that range, and ``edge_near`` (4), the agent's distance to the surface's west, east, south and
     north edges, each clipped to it. An actor that reads ``target`` and ``position`` tens of metres wide after
     normalisation cannot resolve the last metres before a goal next to an edge. 0 (default, the paper's
-    observation) leaves them out."""
+    observation) leaves them out. >= 0, and the near field at most the arena's diagonal."""
     near_obstacles: bool = False
     """Also observe every obstacle within the near field (``near_steps``, which must then be > 0) at that field's
     scale: ``static_near`` (m, 2) and ``dynamic_near`` (n, 2), the nearest point of each static obstacle's and
@@ -214,7 +304,7 @@ class EpisodeSpec:
     radius plus ``ROUTE_MARGIN``, the scripted planner's static margin) for k = 1 .. ``route_steps``, relative to
     the agent (the target itself where the path is shorter). The path ignores the movers, so it is the same
     information with or without prediction: it is what a global planner hands a local one. 0 (default, the
-    paper's observation) leaves it out."""
+    paper's observation) leaves it out. >= 0, and ``route_steps * agent.reach`` at most the arena's perimeter."""
 
 
 ROUTE_MARGIN = 2.5
@@ -263,9 +353,16 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise SceneSpecError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(float(value)):
+        try:
+            number = float(value)
+        except OverflowError:
+            raise SceneSpecError(
+                f"{where}: expected a finite number, got an integer of {len(str(abs(value)))} digits, beyond a "
+                "float's range"
+            ) from None
+        if not math.isfinite(number):
             raise SceneSpecError(f"{where}: expected a finite number, got {value!r}")
-        return float(value)
+        return number
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise SceneSpecError(f"{where}: expected an integer, got {value!r}")
@@ -325,76 +422,296 @@ def _check(condition: bool, where: str, message: str) -> None:
         raise SceneSpecError(f"{where}: {message}")
 
 
+def _check_range(
+    value: float, lo: float, hi: float, where: str, bounds: str = "", lo_open: bool = False, lo_why: str = ""
+) -> None:
+    """``value`` in [lo, hi] (or (lo, hi] with ``lo_open``); ``bounds`` gives the upper bound's unit and where it
+    comes from, ``lo_why`` where the lower one does."""
+    below = "must be > " if lo_open else "must be >= "
+    _check(
+        lo < value if lo_open else lo <= value,
+        where,
+        f"{below}{lo:g}{' ' + lo_why if lo_why else ''}, got {value!r}",
+    )
+    _check(value <= hi, where, f"must be <= {hi:g}{' ' + bounds if bounds else ''}, got {value!r}")
+
+
+def _check_sites(names: tuple[str, ...], arena: ArenaFacts, where: str) -> None:
+    """Every name a site of ``arena``."""
+    for i, name in enumerate(names):
+        _check(
+            name in arena.sites,
+            f"{where}[{i}]",
+            f"the {arena.name} arena has no site {name!r}; its sites are {', '.join(sorted(arena.sites))}",
+        )
+
+
 def _validate(spec: SceneSpec, src: str) -> None:
-    """Semantic checks across fields (ranges, divisibility, counts)."""
-    a, s, m, r, e = spec.agent, spec.static, spec.movers, spec.reward, spec.episode
-    for name in ("reach", "goal_radius", "radius"):
-        _check(getattr(a, name) > 0, f"{src} [agent].{name}", f"must be > 0, got {getattr(a, name)}")
-    _check(len(a.start_sites) > 0, f"{src} [agent].start_sites", "must name at least one site")
-    _check(len(a.target_sites) > 0, f"{src} [agent].target_sites", "must name at least one site")
-    _check(
-        a.min_target_distance <= a.max_target_distance,
-        f"{src} [agent].min_target_distance",
-        f"{a.min_target_distance} exceeds max_target_distance {a.max_target_distance}",
-    )
-    _check(s.slotted >= 0 and s.scattered >= 0, f"{src} [static]", "counts must be >= 0")
-    for name in ("speed_range", "dwell_range"):
-        lo, hi = getattr(m, name)
-        _check(0 <= lo <= hi, f"{src} [movers].{name}", f"expected 0 <= min <= max, got {[lo, hi]}")
-    _check(m.speed_range[1] > 0, f"{src} [movers].speed_range", "maximum speed must be > 0")
-    for name in ("accel", "decel", "turn_rate"):
-        _check(getattr(m, name) > 0, f"{src} [movers].{name}", f"must be > 0, got {getattr(m, name)}")
-    _check(m.count == 0 or len(m.spots) >= 2, f"{src} [movers].spots", "movers need at least two spots")
-    _check(
-        m.spawn_near_agent + m.spawn_random <= m.count,
-        f"{src} [movers].spawn_near_agent",
-        "spawn_near_agent + spawn_random exceeds the number of movers",
-    )
-    _check(
-        0 < r.attraction_min <= r.attraction_max,
-        f"{src} [reward].attraction_min",
-        f"expected 0 < l <= L, got l={r.attraction_min}, L={r.attraction_max}",
-    )
-    _check(
-        0 < r.repulsion_min <= r.repulsion_max,
-        f"{src} [reward].repulsion_min",
-        f"expected 0 < h <= H, got h={r.repulsion_min}, H={r.repulsion_max}",
-    )
-    _check(
-        r.influence_radius > 0, f"{src} [reward].influence_radius", f"must be > 0, got {r.influence_radius}"
-    )
-    _check(e.time_limit > 0, f"{src} [episode].time_limit", f"must be > 0, got {e.time_limit}")
-    _check(e.control_period > 0 and e.physics_timestep > 0, f"{src} [episode]", "periods must be > 0")
-    ratio = e.control_period / e.physics_timestep
-    _check(
-        abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1,
-        f"{src} [episode].physics_timestep",
-        f"{e.physics_timestep} does not divide control_period {e.control_period}",
-    )
-    _check(
-        1 <= e.collision_checks <= round(ratio),
-        f"{src} [episode].collision_checks",
-        f"expected 1..{round(ratio)}, got {e.collision_checks}",
-    )
-    _check(e.history >= 2, f"{src} [episode].history", f"must be >= 2, got {e.history}")
-    _check(e.horizon >= 1, f"{src} [episode].horizon", f"must be >= 1, got {e.horizon}")
-    _check(e.near_steps >= 0, f"{src} [episode].near_steps", f"must be >= 0, got {e.near_steps}")
-    _check(
-        not e.near_obstacles or e.near_steps > 0,
-        f"{src} [episode].near_obstacles",
-        "needs a near field: set [episode].near_steps > 0",
-    )
-    _check(
-        m.agent_yield_braking >= 0,
-        f"{src} [movers].agent_yield_braking",
-        f"must be >= 0, got {m.agent_yield_braking}",
-    )
-    _check(e.route_steps >= 0, f"{src} [episode].route_steps", f"must be >= 0, got {e.route_steps}")
+    """Every field's bounds, and the checks across fields and against the arena and the vehicles."""
+    arena = arena_facts(spec.arena)
+    top_speed = vehicle_top_speeds()
+    _validate_timing(spec.episode, f"{src} [episode]")
+    _validate_agent(spec, f"{src} [agent]", arena, top_speed)
+    _validate_movers(spec, f"{src} [movers]", arena, top_speed)
+    _validate_static(spec, f"{src} [static]", arena)
+    _validate_reward(spec, f"{src} [reward]", arena)
+    _validate_episode(spec, f"{src} [episode]", arena)
+    s, m = spec.static, spec.movers
     if spec.paper_counts != (0, 0):
         _check(
             (s.count, m.count) == spec.paper_counts,
             f"{src} paper_counts",
             f"scene has {s.count} static and {m.count} dynamic obstacles, paper_counts says {spec.paper_counts}",
+        )
+
+
+def _validate_timing(e: EpisodeSpec, w: str) -> None:
+    """The episode's clock: time limit, control period and physics timestep."""
+    _check_range(e.time_limit, 0.0, MAX_TIME_LIMIT, f"{w}.time_limit", "s (MAX_TIME_LIMIT)", lo_open=True)
+    _check_range(e.control_period, 0.0, e.time_limit, f"{w}.control_period", "s (episode.time_limit)", lo_open=True)
+    _check_range(
+        e.physics_timestep,
+        MIN_PHYSICS_TIMESTEP,
+        math.inf,
+        f"{w}.physics_timestep",
+        lo_why="s (MIN_PHYSICS_TIMESTEP: the physics steps per control step stay countable)",
+    )
+    ratio = e.control_period / e.physics_timestep
+    _check(
+        abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1,
+        f"{w}.physics_timestep",
+        f"{e.physics_timestep} does not divide control_period {e.control_period}",
+    )
+    _check_range(
+        e.physics_timestep,
+        0.0,
+        MAX_PHYSICS_TIMESTEP,
+        f"{w}.physics_timestep",
+        "s, the largest timestep the models are stable at (deck_sim.scenes.MAX_PHYSICS_TIMESTEP)",
+    )
+    _check(
+        1 <= e.collision_checks <= round(ratio),
+        f"{w}.collision_checks",
+        f"expected 1..{round(ratio)} (the physics steps per control step, episode.control_period / "
+        f"episode.physics_timestep), got {e.collision_checks}",
+    )
+
+
+def _validate_agent(spec: SceneSpec, w: str, arena: ArenaFacts, top_speed: dict[str, float]) -> None:
+    a, period = spec.agent, spec.episode.control_period
+    for name in ("start_sites", "target_sites"):
+        _check(len(getattr(a, name)) > 0, f"{w}.{name}", "must name at least one site")
+        _check_sites(getattr(a, name), arena, f"{w}.{name}")
+    speed = top_speed[a.vehicle]
+    _check_range(
+        a.reach,
+        0.0,
+        speed * period,
+        f"{w}.reach",
+        f"m (agent.vehicle {a.vehicle!r}: its top speed {speed:g} m/s over episode.control_period {period:g} s)",
+        lo_open=True,
+    )
+    _check_range(a.goal_radius, 0.0, arena.diagonal, f"{w}.goal_radius", "m (the arena's diagonal)", lo_open=True)
+    half = min(arena.hi[0] - arena.lo[0], arena.hi[1] - arena.lo[1]) / 2
+    _check_range(a.radius, 0.0, half, f"{w}.radius", "m (half the surface's shorter side)", lo_open=True)
+    for name, sites in (("start_jitter", "start_sites"), ("target_jitter", "target_sites")):
+        j = getattr(a, name)
+        _check(j >= 0, f"{w}.{name}", f"must be >= 0, got {j}")
+        off = []
+        for site in getattr(a, sites):
+            x, y = arena.sites[site]
+            if not (arena.on_surface(x - j, y - j) and arena.on_surface(x + j, y + j)):
+                off.append(site)
+        _check(not off, f"{w}.{name}", f"{j} m puts site(s) {off} of agent.{sites} off the {arena.name}'s surface")
+    _check_range(a.yaw_jitter, 0.0, math.pi, f"{w}.yaw_jitter", "rad")
+    _check(a.min_target_distance >= 0, f"{w}.min_target_distance", f"must be >= 0, got {a.min_target_distance}")
+    _check(
+        a.min_target_distance <= a.max_target_distance,
+        f"{w}.min_target_distance",
+        f"{a.min_target_distance} exceeds agent.max_target_distance {a.max_target_distance}",
+    )
+    slack = math.sqrt(2.0) * (a.start_jitter + a.target_jitter)  # how far the jitters move the distance
+    for start in a.start_sites:
+        sx, sy = arena.sites[start]
+        dists = [math.hypot(arena.sites[t][0] - sx, arena.sites[t][1] - sy) for t in a.target_sites]
+        if any(d + slack >= a.min_target_distance and d - slack <= a.max_target_distance for d in dists):
+            continue
+        name = "min_target_distance" if all(d + slack < a.min_target_distance for d in dists) else "max_target_distance"
+        raise SceneSpecError(
+            f"{w}.{name}: no site of agent.target_sites lies {a.min_target_distance:g}-{a.max_target_distance:g} m "
+            f"from the start site {start!r} of agent.start_sites (with the jitters)"
+        )
+
+
+def _validate_static(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
+    s, a, m = spec.static, spec.agent, spec.movers
+    _check(
+        s.slot_prefix != "",
+        f"{w}.slot_prefix",
+        "must not be empty (every site of the arena would be a slot, starts, targets and spots included)",
+    )
+    slots = arena.sites_with_prefix(s.slot_prefix)
+    for field_name in ("agent.start_sites", "agent.target_sites", "movers.spots") if s.slotted > 0 else ():
+        section, name = field_name.split(".")
+        taken = sorted(set(slots) & set(getattr(getattr(spec, section), name)))
+        _check(
+            not taken,
+            f"{w}.slot_prefix",
+            f"{s.slot_prefix!r} makes site(s) {taken} of {field_name} slots: an obstacle would stand on them",
+        )
+    _check(
+        0 <= s.slotted <= len(slots),
+        f"{w}.slotted",
+        f"must be 0 to the {len(slots)} '{s.slot_prefix}*' slots (static.slot_prefix) of the {arena.name} arena, "
+        f"got {s.slotted}",
+    )
+    _check_range(s.scattered, 0, MAX_SCATTERED, f"{w}.scattered", "(MAX_SCATTERED)")
+    aircraft = [f"agent.vehicle = {a.vehicle!r}"] if a.vehicle == "aircraft" else []
+    aircraft += [f"movers.aircraft = {m.aircraft}"] if m.aircraft > 0 else []
+    _check(
+        s.scattered == 0 or not aircraft,
+        f"{w}.scattered",
+        f"{s.scattered} standing groups cannot share a scene with aircraft ({', '.join(aircraft)}): MuJoCo's "
+        "capsule-cylinder collision can return more contacts than it has room for and abort",
+    )
+    _check_range(s.scatter_clearance, 0.0, arena.diagonal, f"{w}.scatter_clearance", "m (the arena's diagonal)")
+
+
+def _validate_movers(spec: SceneSpec, w: str, arena: ArenaFacts, top_speed: dict[str, float]) -> None:
+    m = spec.movers
+    for name in ("tractors", "aircraft", "pedestrians", "spawn_near_agent", "spawn_random"):
+        _check(getattr(m, name) >= 0, f"{w}.{name}", f"must be >= 0, got {getattr(m, name)}")
+    _check_range(m.aircraft, 0, MAX_TAXIING_AIRCRAFT, f"{w}.aircraft", "(MAX_TAXIING_AIRCRAFT)")
+    counts = {"tractors": m.tractors, "aircraft": m.aircraft, "pedestrians": m.pedestrians}
+    _check(
+        m.count <= MAX_MOVERS,
+        f"{w}.{max(counts, key=counts.__getitem__)}",
+        f"{m.tractors} tractors + {m.aircraft} aircraft + {m.pedestrians} pedestrians make {m.count} movers, "
+        f"more than the {MAX_MOVERS} a scene may have (MAX_MOVERS)",
+    )
+    _check_sites(m.spots, arena, f"{w}.spots")
+    twice = sorted({n for n in m.spots if m.spots.count(n) > 1})
+    _check(not twice, f"{w}.spots", f"name(s) {twice} given more than once")
+    _check(m.count == 0 or len(m.spots) >= 2, f"{w}.spots", f"{m.count} movers need at least two spots")
+    spawned = m.spawn_near_agent + m.spawn_random
+    _check(
+        spawned <= m.count,
+        f"{w}.spawn_near_agent",
+        f"spawn_near_agent {m.spawn_near_agent} + movers.spawn_random {m.spawn_random} exceed the {m.count} movers "
+        "(movers.tractors + movers.aircraft + movers.pedestrians)",
+    )
+    lo, hi = m.speed_range
+    _check(0 <= lo <= hi and hi > 0, f"{w}.speed_range", f"expected 0 <= min <= max, max > 0, got {[lo, hi]}")
+    kinds = {"tractor": "tractors", "aircraft": "aircraft", "pedestrian": "pedestrians"}  # vehicle -> count field
+    present = [k for k, count in kinds.items() if getattr(m, count) > 0]
+    # the slowest kind of mover in the scene; without movers, the fastest vehicle (no mover goes faster)
+    slowest = min(present, key=top_speed.__getitem__) if present else max(kinds, key=top_speed.__getitem__)
+    _check(
+        hi <= top_speed[slowest],
+        f"{w}.speed_range",
+        f"the top cruise speed {hi:g} m/s exceeds the {slowest}'s top speed {top_speed[slowest]:g} m/s "
+        f"(movers.{kinds[slowest]} = {getattr(m, kinds[slowest])})",
+    )
+    lo, hi = m.dwell_range
+    _check(
+        0 <= lo <= hi <= MAX_TIME_LIMIT,
+        f"{w}.dwell_range",
+        f"expected 0 <= min <= max <= {MAX_TIME_LIMIT:g} s (MAX_TIME_LIMIT), got {[lo, hi]}",
+    )
+    for name in ("accel", "decel"):
+        _check_range(getattr(m, name), MIN_ACCEL, MAX_ACCEL, f"{w}.{name}", "m/s^2 (MAX_ACCEL)", lo_why="(MIN_ACCEL)")
+    _check_range(m.agent_yield_braking, 0.0, MAX_ACCEL, f"{w}.agent_yield_braking", "m/s^2 (MAX_ACCEL)")
+    _check_range(m.turn_rate, 0.0, MAX_TURN_RATE, f"{w}.turn_rate", "rad/s (MAX_TURN_RATE)", lo_open=True)
+    for name in ("clearance", "yield_distance", "agent_yield_distance", "near_radius"):
+        _check_range(getattr(m, name), 0.0, arena.diagonal, f"{w}.{name}", "m (the arena's diagonal)")
+
+
+def _validate_reward(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
+    r = spec.reward
+    _check(
+        0 < r.attraction_min <= r.attraction_max,
+        f"{w}.attraction_min",
+        f"expected 0 < l <= L, got l={r.attraction_min}, L={r.attraction_max} (reward.attraction_max)",
+    )
+    _check(
+        0 < r.repulsion_min <= r.repulsion_max,
+        f"{w}.repulsion_min",
+        f"expected 0 < h <= H, got h={r.repulsion_min}, H={r.repulsion_max} (reward.repulsion_max)",
+    )
+    _check_range(
+        r.influence_radius, 0.0, arena.diagonal, f"{w}.influence_radius", "m (the arena's diagonal)", lo_open=True
+    )
+    _check(r.collision <= 0, f"{w}.collision", f"must be <= 0 (a penalty), got {r.collision}")
+    _check(r.goal >= 0, f"{w}.goal", f"must be >= 0, got {r.goal}")
+    terms = {
+        "w_attraction": "attraction_max",
+        "w_repulsion": "repulsion_max",
+        "w_collision": "collision",
+        "w_goal": "goal",
+    }
+    for weight, constant in terms.items():
+        value = getattr(r, weight)
+        _check(value >= 0, f"{w}.{weight}", f"must be >= 0 (the term's sign is its constant's), got {value}")
+        _check(
+            math.isfinite(value * getattr(r, constant)),
+            f"{w}.{weight}",
+            f"{weight} * reward.{constant} = {value} * {getattr(r, constant)} is not a finite number",
+        )
+    _check(
+        math.isfinite(sum(abs(getattr(r, k) * getattr(r, c)) for k, c in terms.items())),
+        f"{w}.w_attraction",
+        "the weighted terms (w_attraction, w_repulsion, w_collision, w_goal times their constants) add up beyond "
+        "the largest float",
+    )
+    _check(
+        0 <= r.progress_deadband < spec.agent.reach,
+        f"{w}.progress_deadband",
+        f"expected 0 <= progress_deadband < agent.reach {spec.agent.reach} m, got {r.progress_deadband}",
+    )
+
+
+def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
+    e, a, m = spec.episode, spec.agent, spec.movers
+    _check_range(e.history, 2, MAX_HISTORY, f"{w}.history", "(MAX_HISTORY)")
+    _check_range(e.horizon, 1, MAX_HORIZON, f"{w}.horizon", "(MAX_HORIZON)")
+    _check(e.near_steps >= 0, f"{w}.near_steps", f"must be >= 0, got {e.near_steps}")
+    _check(
+        e.near_steps <= arena.diagonal / a.reach,
+        f"{w}.near_steps",
+        f"near_steps * agent.reach = {e.near_steps} * {a.reach} m exceeds the arena's diagonal "
+        f"{arena.diagonal:.1f} m",
+    )
+    _check(
+        not e.near_obstacles or e.near_steps > 0,
+        f"{w}.near_obstacles",
+        "needs a near field: set [episode].near_steps > 0",
+    )
+    _check(e.route_steps >= 0, f"{w}.route_steps", f"must be >= 0, got {e.route_steps}")
+    _check(
+        e.route_steps <= arena.perimeter / a.reach,
+        f"{w}.route_steps",
+        f"route_steps * agent.reach = {e.route_steps} * {a.reach} m exceeds the arena's perimeter "
+        f"{arena.perimeter:.1f} m",
+    )
+    if e.predictor == "mpc":
+        from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
+
+        mpc = MPCPredictorSettings
+        _check(
+            e.history >= mpc.history,
+            f"{w}.history",
+            f"episode.predictor 'mpc' reads the last {mpc.history} samples, got history {e.history}",
+        )
+        _check(
+            m.count <= mpc.max_movers,
+            f"{w}.predictor",
+            f"'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} (movers.tractors + "
+            "movers.aircraft + movers.pedestrians)",
+        )
+        _check(
+            len(m.spots) <= mpc.max_spots,
+            f"{w}.predictor",
+            f"'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
         )
 
 
@@ -431,9 +748,15 @@ def _read_scene_file(path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
     """A scene file's TOML document with the scene it ``extends`` (a shipped name or a path relative to the file)
     merged under it: the base's sections, each field replaced where the file sets it."""
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError as err:
         raise SceneSpecError(f"scene file {path} does not exist") from err
+    except IsADirectoryError as err:
+        raise SceneSpecError(f"scene file {path} is a directory, not a TOML file") from err
+    except OSError as err:
+        raise SceneSpecError(f"scene file {path} cannot be read: {err.strerror or err}") from err
+    except UnicodeDecodeError as err:
+        raise SceneSpecError(f"{path.name}: not a TOML file (not UTF-8 text at byte {err.start})") from err
     except tomllib.TOMLDecodeError as err:
         raise SceneSpecError(f"{path.name}: not valid TOML: {err}") from err
     base_name = data.pop("extends", None)
@@ -477,7 +800,10 @@ def load_scene(name_or_path: str | Path, **overrides: Any) -> SceneSpec:
             raise SceneSpecError(
                 f"override {key!r}: expected <section>__<field> with section in {sorted(_SECTIONS)}"
             )
-        data.setdefault(section, {})[name] = value
+        table = data.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise SceneSpecError(f"{path.name} [{section}]: expected a table, got {table!r}")
+        table[name] = value
     if set(overrides) & _COUNT_FIELDS:
         data.pop("paper_counts", None)  # counts overridden: no longer the paper's scene
     return parse_scene(data, path.name)
