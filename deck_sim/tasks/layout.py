@@ -21,8 +21,9 @@ _GROUP_RADIUS = 1.2
 """Radius of a scattered standing group's disc, metres."""
 
 
-class LayoutError(RuntimeError):
-    """The episode's layout could not be sampled (rejection sampling ran out of attempts)."""
+class LayoutError(ValueError):
+    """The episode's layout could not be sampled (rejection sampling ran out of attempts): the scene's values ask for
+    more than its arena holds. A ``ValueError``, as bad input is (``deck-sim`` reports it in one line)."""
 
 
 @dataclass
