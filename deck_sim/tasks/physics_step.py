@@ -17,6 +17,7 @@ from dm_control import mjcf
 
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor
 from deck_sim.geometry import Footprints
+from deck_sim.scenes.arena_facts import vehicle_top_speeds
 
 if TYPE_CHECKING:
     from deck_sim.entities.arenas import _SiteArena
@@ -29,6 +30,10 @@ _DIVERGENCE_WARNINGS = (
 
 _NO_SENSORS = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
 """The disable flag that skips sensor computation on the fused substeps between contact checks."""
+
+RUNAWAY_FACTOR = 10.0
+"""A vehicle faster than this many times the top speed of the fastest vehicle in the scene
+(``scenes.arena_facts.vehicle_top_speeds``) has run away: the physics diverged, whether MuJoCo warned or not."""
 
 
 class FusedStepper:
@@ -73,6 +78,14 @@ class FusedStepper:
                 vel_dofs.append([adr, adr + 1])
         self._vel_dofs = np.array(vel_dofs, dtype=int)
         self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
+        top = vehicle_top_speeds()
+        fastest = max(
+            top["pedestrian" if isinstance(v, Pedestrian) else "aircraft" if isinstance(v, Aircraft) else "tractor"]
+            for v in vehicles
+        )
+        self.runaway_speed = RUNAWAY_FACTOR * fastest
+        """m/s: a planar speed above this flags the control step as diverged."""
+        self._runaway_sq = self.runaway_speed**2
         self._any_ped = bool(self._is_ped.any())
         # contact bookkeeping: which geoms are the agent's, which obstacle owns every other geom
         self.obstacle_names = [p.mjcf_model.model for p in statics]
@@ -102,6 +115,7 @@ class FusedStepper:
         self.collided_with: str | None = None
         """The first obstacle the agent touched in the current control step, or None."""
         self._warnings_before = 0
+        self._diverged = False  # what ``diverged`` found for the current control step
 
     def read_state(self) -> dict[str, np.ndarray]:
         """Planar pose and velocity of the agent (row 0) and every mover: ``xy`` (k, 2) metres, ``yaw`` (k,)
@@ -120,6 +134,7 @@ class FusedStepper:
     def start_episode(self) -> None:
         """Forget the last contact and take MuJoCo's warning counts as they are now."""
         self.collided_with = None
+        self._diverged = False
         self._warnings_before = sum(self._d.warning.number[self._warning_ids].tolist())
 
     def substeps(self) -> None:
@@ -127,6 +142,7 @@ class FusedStepper:
         d = self._d
         self._warnings_before = sum(d.warning.number[self._warning_ids].tolist())  # compared in ``diverged``
         self.collided_with = None
+        self._diverged = False
         # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
         # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
         # run mj_rnePostConstraint every step) leaves the trajectory and every value read bit-identical.
@@ -157,15 +173,27 @@ class FusedStepper:
 
     def diverged(self) -> bool:
         """Whether the physics diverged over the control step, composer's substep included: MuJoCo warned (and
-        reset the state) after ``substeps`` began, or a position is not finite."""
+        reset the state) after ``substeps`` began, a position is not finite, or a vehicle moves faster than
+        ``runaway_speed`` (a timestep too coarse for the models can blow up without MuJoCo noticing)."""
         d = self._d
         warnings = sum(d.warning.number[self._warning_ids].tolist())
-        return warnings > self._warnings_before or not np.isfinite(d.qpos).all()
+        vel = d.qvel[self._vel_dofs]
+        speed_sq = float((vel * vel).sum(axis=1).max())
+        self._diverged = (
+            warnings > self._warnings_before or not np.isfinite(d.qpos).all() or not speed_sq <= self._runaway_sq
+        )
+        return self._diverged
 
     def surface(self, xy: np.ndarray) -> tuple[bool, np.ndarray]:
         """Whether the agent is on the surface, and which movers (n,) are lost: off the surface or fallen below
-        it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``."""
+        it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``.
+
+        After a control step that ``diverged`` found diverged, no mover counts as lost: the state is MuJoCo's reset
+        (every body back at the origin, piled on each other) or a blown-up one, the episode ends, and there is
+        nothing to rescue (``MoverDriver.rescue`` would log every mover as pushed off the surface)."""
         on_surface = self._arena.on_surface(xy)  # the agent, then every mover
+        if self._diverged:
+            return bool(on_surface[0]), np.zeros(len(self.body_ids) - 1, dtype=bool)
         lost = ~on_surface[1:] | (self._d.xpos[self.body_ids[1:], 2] < -1.0)
         return bool(on_surface[0]), lost
 
