@@ -56,17 +56,23 @@ def parse_assignments(items: list[str], flag: str = "--set") -> dict[str, object
 
 def scene_overrides(items: list[str]) -> dict[str, object]:
     """``--scene-set section.field=value`` pairs as ``deck_sim.load`` overrides (``section__field``); the scene
-    checks the names and values."""
+    checks the names and values. A field given twice is refused (which value was meant is not for us to guess)."""
     from deck_sim.scenes import SECTIONS
 
-    out = {}
-    for key, value in parse_assignments(items, flag="--scene-set").items():
+    out: dict[str, object] = {}
+    for item in items:
+        ((key, value),) = parse_assignments([item], flag="--scene-set").items()
         section, dot, field = key.partition(".")
         if not dot or not section or not field:
             raise ValueError(f"--scene-set expects section.field=value (e.g. movers.yield_distance=12), got {key!r}")
         if section not in SECTIONS:
             raise ValueError(f"--scene-set {key}: no section [{section}]; the sections are {', '.join(SECTIONS)}")
-        out[f"{section}__{field}"] = value
+        name = f"{section}__{field}"
+        if name in out:
+            raise ValueError(
+                f"--scene-set {key} is given twice ({out[name]!r}, then {value!r}); give each field once"
+            )
+        out[name] = value
     return out
 
 
