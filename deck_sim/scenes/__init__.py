@@ -474,7 +474,7 @@ def _validate_timing(e: EpisodeSpec, w: str) -> None:
         MIN_PHYSICS_TIMESTEP,
         math.inf,
         f"{w}.physics_timestep",
-        lo_why="s (MIN_PHYSICS_TIMESTEP: the physics steps per control step stay countable)",
+        lo_why="s (MIN_PHYSICS_TIMESTEP: finer steps only multiply the physics steps per decision)",
     )
     ratio = e.control_period / e.physics_timestep
     _check(
