@@ -4,6 +4,9 @@ with one line: actions (``InvalidActionError``), the Gymnasium env's step order 
 it), the sizes, names and counts of ``deck-sim render`` and ``log video``, the folder of ``deck-sim run`` and its
 Ctrl-C. Property tests (hypothesis, the deterministic profile of conftest.py) throw generated junk at each."""
 
+import json
+import struct
+import zipfile
 
 import numpy as np
 import pytest
@@ -13,6 +16,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import deck_sim
+from deck_sim.cli import main
+from deck_sim.policies import PolicyFileError, load_actor, shipped_policy_path
+from deck_sim.policies.actors import ACTOR_FORMAT
 from deck_sim.tasks.navigate import InvalidActionError, _real_action
 from deck_sim.wrappers import DeckSimEnv
 
@@ -24,6 +30,35 @@ def env():
     e = deck_sim.load("deck1", seed=0)
     e.reset()
     return e
+
+
+def _write_actor(path):
+    """A small format-1 actor (3 inputs, 4 hidden units) as ``training`` writes one: a compressed ``.npz``."""
+    rng = np.random.default_rng(0)
+    meta = {"format": ACTOR_FORMAT, "scene": "deck1", "predictor": "none", "observation_keys": ["target", "heading"],
+            "observation_shapes": {"target": [2], "heading": [1]}}
+    arrays = {"w0": rng.normal(size=(4, 3)), "b0": np.zeros(4), "w1": rng.normal(size=(2, 4)), "b1": np.zeros(2),
+              "norm_enabled": np.array(True), "norm_mean": np.zeros(3), "norm_std": np.ones(3),
+              "norm_clip": np.array(5.0)}
+    np.savez_compressed(path, meta=np.array(json.dumps(meta)), **arrays)
+    return path
+
+
+@pytest.fixture(scope="module")
+def actor_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("actors")
+    _write_actor(folder / "actor.npz")
+    return folder
+
+
+def _one_line_error(capsys, argv, *words):
+    """``deck-sim argv`` exits 2 with one line on stderr naming every one of ``words``, and no traceback."""
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"deck-sim {argv[0]}: error: ") and "\n" not in err and "Traceback" not in err, err
+    for word in words:
+        assert str(word) in err, (word, err)
+    return err
 
 
 # -- actions -------------------------------------------------------------------------------------------------------
@@ -141,3 +176,95 @@ def test_the_gym_env_steps_only_inside_an_episode():
     with pytest.raises(ResetNeeded):
         short.step(np.zeros(2, dtype=np.float32))
     short.close()
+
+
+# -- actor files ---------------------------------------------------------------------------------------------------
+def _flip_member_data(data: bytes, path, member: str, count: int = 8) -> bytes:
+    """``data`` (the bytes of the zip at ``path``) with ``count`` bytes in the middle of ``member``'s compressed
+    data inverted."""
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo(member)
+    name_len, extra_len = struct.unpack_from("<HH", data, info.header_offset + 26)
+    start = info.header_offset + 30 + name_len + extra_len + info.compress_size // 2
+    out = bytearray(data)
+    for i in range(start, start + count):
+        out[i] ^= 0xFF
+    return bytes(out)
+
+
+def test_a_bit_flipped_actor_file_is_a_policy_file_error_naming_it(actor_dir, tmp_path, capsys):
+    shipped = shipped_policy_path("mddpg", "deck1")
+    flipped = tmp_path / "flipped.npz"
+    flipped.write_bytes(_flip_member_data(shipped.read_bytes(), shipped, "m0/w0.npy"))
+    with pytest.raises(PolicyFileError, match="not a readable actor file") as err:
+        load_actor(flipped)
+    assert str(flipped) in str(err.value)
+    _one_line_error(capsys, ["run", "--policy", flipped, "--episodes", 1, "--quiet", "--out", tmp_path / "run"],
+                    flipped, "not a readable actor file")
+    assert not (tmp_path / "run").exists()
+    # deck-sim ensemble reads its actors with the same reader
+    small = actor_dir / "actor.npz"
+    small_flipped = tmp_path / "small.npz"
+    small_flipped.write_bytes(_flip_member_data(small.read_bytes(), small, "w0.npy", count=4))
+    _one_line_error(capsys, ["ensemble", small, small_flipped, "--out", tmp_path / "joined.npz"], small_flipped)
+    assert not (tmp_path / "joined.npz").exists()
+
+
+def test_a_malformed_record_or_array_fails_on_loading(actor_dir, tmp_path):
+    with np.load(actor_dir / "actor.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    cases = {
+        "overrides": ({**meta, "scene_overrides": [1, 2]}, arrays),
+        "shape": ({**meta, "observation_shapes": {"target": [float("inf")], "heading": [1]}}, arrays),
+        "complex": (meta, {**arrays, "w0": arrays["w0"] * (1 + 1j)}),
+        "text": (meta, {**arrays, "norm_std": np.array(["1", "1", "1"])}),
+    }
+    for name, (m, a) in cases.items():
+        path = tmp_path / f"{name}.npz"
+        np.savez(path, meta=np.array(json.dumps(m)), **a)
+        with pytest.raises(PolicyFileError) as err:
+            load_actor(path)
+        assert str(path) in str(err.value), name
+
+
+_DAMAGE = st.one_of(
+    st.tuples(st.just("flip"), st.lists(st.tuples(st.floats(0, 1, exclude_max=True), st.integers(0, 7)),
+                                         min_size=1, max_size=4)),
+    st.tuples(st.just("overwrite"), st.tuples(st.floats(0, 1, exclude_max=True), st.binary(min_size=1, max_size=64))),
+    st.tuples(st.just("cut"), st.floats(0, 1, exclude_max=True)),
+    st.tuples(st.just("junk"), st.binary(max_size=256)),
+)
+
+
+def _damaged(data: bytes, damage, start: int = 0) -> bytes:
+    """``data`` with one generated damage (``_DAMAGE``) at or after byte ``start``."""
+    kind, what = damage
+    span = len(data) - start
+    if kind == "junk":
+        return what
+    if kind == "cut":
+        return data[: start + int(what * span)]
+    out = bytearray(data)
+    if kind == "flip":
+        for where, bit in what:
+            out[start + int(where * span)] ^= 1 << bit
+        return bytes(out)
+    at = start + int(what[0] * span)
+    out[at : at + len(what[1])] = what[1][: len(data) - at]
+    return bytes(out)
+
+
+@settings(max_examples=120, deadline=None)
+@given(damage=_DAMAGE)
+def test_generated_damage_to_an_actor_file_is_only_a_policy_file_error(actor_dir, damage):
+    good = actor_dir / "actor.npz"
+    path = actor_dir / "damaged.npz"
+    path.write_bytes(_damaged(good.read_bytes(), damage))
+    try:
+        policy = load_actor(path)
+    except PolicyFileError as err:
+        assert str(path) in str(err)
+    else:  # damage the zip's checks let pass (a timestamp, a comment) leaves the actor as it was
+        expected = load_actor(good).act({"target": np.ones(2), "heading": np.ones(1)})
+        np.testing.assert_array_equal(policy.act({"target": np.ones(2), "heading": np.ones(1)}), expected)
