@@ -4,6 +4,7 @@ with one line: actions (``InvalidActionError``), the Gymnasium env's step order 
 it), the sizes, names and counts of ``deck-sim render`` and ``log video``, the folder of ``deck-sim run`` and its
 Ctrl-C. Property tests (hypothesis, the deterministic profile of conftest.py) throw generated junk at each."""
 
+import csv
 import json
 import struct
 import zipfile
@@ -17,10 +18,14 @@ from hypothesis import strategies as st
 
 import deck_sim
 from deck_sim.cli import main
-from deck_sim.policies import PolicyFileError, load_actor, shipped_policy_path
+from deck_sim.policies import PolicyFileError, load_actor, make_policy, shipped_policy_path
 from deck_sim.policies.actors import ACTOR_FORMAT
+from deck_sim.recording import EpisodeLog, LogError, recover
+from deck_sim.rollout import open_recorder, run_episode
 from deck_sim.tasks.navigate import InvalidActionError, _real_action
 from deck_sim.wrappers import DeckSimEnv
+
+LIMIT = 5.0  # s: the small log's episodes (10 decisions each)
 
 
 # -- fixtures ------------------------------------------------------------------------------------------------------
@@ -49,6 +54,25 @@ def actor_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("actors")
     _write_actor(folder / "actor.npz")
     return folder
+
+
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory):
+    """A log of two scripted episodes of 5 s in 4 KiB chunks, and the live results."""
+    path = tmp_path_factory.mktemp("log") / "episodes.mcap"
+    e = deck_sim.load("deck1", seed=2, episode__time_limit=LIMIT)
+    policy = make_policy("scripted", e, seed=2)
+    with open_recorder(path, e, seed=2, policy="scripted", chunk_size=4096) as rec:
+        live = [run_episode(e, policy, episode=k, recorder=rec) for k in range(2)]
+    return path, live
+
+
+def _summary_start(data: bytes) -> int:
+    """Where the summary section begins, read from the footer (opcode, length, then summary_start; then the
+    summary offset start, the summary CRC and the 8 closing magic bytes)."""
+    footer = len(data) - 8 - (1 + 8 + 8 + 8 + 4)
+    assert data[footer] == 0x02  # the footer's opcode
+    return struct.unpack_from("<Q", data, footer + 9)[0]
 
 
 def _one_line_error(capsys, argv, *words):
@@ -268,3 +292,92 @@ def test_generated_damage_to_an_actor_file_is_only_a_policy_file_error(actor_dir
     else:  # damage the zip's checks let pass (a timestamp, a comment) leaves the actor as it was
         expected = load_actor(good).act({"target": np.ones(2), "heading": np.ones(1)})
         np.testing.assert_array_equal(policy.act({"target": np.ones(2), "heading": np.ones(1)}), expected)
+
+
+# -- episode logs --------------------------------------------------------------------------------------------------
+def test_a_damaged_summary_section_is_read_past_and_recover_rebuilds_it(small_log, tmp_path, capsys):
+    path, live = small_log
+    data = path.read_bytes()
+    start = _summary_start(data)
+    damaged = bytearray(data)
+    for i in range(start + 40, start + 56):  # inside the summary's first schema record
+        damaged[i] ^= 0xFF
+    bad = tmp_path / "summary.mcap"
+    bad.write_bytes(bytes(damaged))
+    cut = tmp_path / "cut-summary.mcap"
+    cut.write_bytes(data[: start + 100])  # the writer killed while it wrote the summary
+    for source in (bad, cut):
+        log = EpisodeLog(source)
+        assert log.summary_damage and not log.truncated
+        assert [ep.rescore().result for ep in log.episodes] == live
+
+    assert main(["log", "info", str(bad)]) == 0
+    out = capsys.readouterr().out
+    assert "summary   damaged" in out and "2 complete" in out
+    assert main(["log", "export", str(bad), "--csv", "--out", str(tmp_path / "csv")]) == 0
+    with open(tmp_path / "csv" / "summary_episodes.csv") as f:
+        assert [float(row["path_length"]) for row in csv.DictReader(f)] == [r.path_length for r in live]
+
+    rec = recover(bad, tmp_path / "fixed.mcap")
+    assert rec.summary_damage and not rec.was_truncated
+    assert (rec.episodes_complete, rec.episodes_incomplete) == (2, 0)
+    fixed = EpisodeLog(rec.path)
+    assert not fixed.summary_damage and [ep.rescore().result for ep in fixed.episodes] == live
+    assert main(["log", "recover", str(bad), "--out", str(tmp_path / "fixed2.mcap")]) == 0
+    assert "summary section damaged" in capsys.readouterr().out
+
+
+@settings(max_examples=60, deadline=None)
+@given(damage=_DAMAGE, summary_only=st.booleans())
+def test_generated_damage_to_a_log_is_only_a_log_error_or_a_faithful_partial_read(small_log, damage, summary_only):
+    path, live = small_log
+    data = path.read_bytes()
+    bad = path.with_name("damaged.mcap")
+    bad.write_bytes(_damaged(data, damage, _summary_start(data) if summary_only else 0))
+    for allow_truncated in (False, True):
+        try:
+            log = EpisodeLog(bad, allow_truncated=allow_truncated)
+        except LogError as err:
+            assert str(bad) in str(err)
+            continue
+        for ep in log.episodes:  # whatever is read is what was written: the CRCs hold the rest back
+            assert [s.step for s in ep.steps] == list(range(len(ep.steps)))
+            if ep.complete:
+                assert ep.rescore().result == live[ep.index]
+    try:
+        rec = recover(bad, path.with_name("recovered.mcap"))
+    except LogError as err:
+        assert str(bad) in str(err) or "recovered.mcap" in str(err)
+    else:
+        for ep in EpisodeLog(rec.path).episodes:
+            if ep.complete:
+                assert ep.rescore().result == live[ep.index]
+
+
+# -- deck-sim render and log video ---------------------------------------------------------------------------------
+def test_render_and_log_video_check_their_arguments_before_any_work(small_log, tmp_path, capsys):
+    log, _ = small_log
+    video = tmp_path / "v.mp4"
+    _one_line_error(capsys, ["render", "--out", tmp_path / "noext"], "--out", ".mp4")
+    _one_line_error(capsys, ["render", "--out", tmp_path / "v.png"], "--out", ".mp4")
+    _one_line_error(capsys, ["render", "--out", video, "--png", tmp_path / "top"], "--png", ".png")
+    _one_line_error(capsys, ["render", "--out", video, "--width", 0], "--width", "at least 16")
+    _one_line_error(capsys, ["render", "--out", video, "--height", -5], "--height", "at least 16")
+    _one_line_error(capsys, ["render", "--out", video, "--steps", -1], "--steps", "at least 1")
+    _one_line_error(capsys, ["render", "--out", video, "--speedup", "nan"], "--speedup")
+    _one_line_error(capsys, ["log", "video", log, "--out", video, "--width", 0], "--width", "at least 16")
+    _one_line_error(capsys, ["log", "video", log, "--out", video, "--max-steps", 0], "--max-steps")
+    _one_line_error(capsys, ["log", "video", log, "--out", tmp_path / "noext"], "--out", ".mp4")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_render_and_log_video_check_the_camera_and_sizes_before_the_first_frame(small_log, tmp_path, capsys):
+    log, _ = small_log
+    video = tmp_path / "v.mp4"
+    _one_line_error(capsys, ["render", "--out", video, "--width", 5000], "5000x360", "2400x1200")
+    _one_line_error(capsys, ["render", "--out", video, "--top-height", 900], "--top-height", "2400x1200")
+    _one_line_error(capsys, ["log", "video", log, "--out", video, "--camera", "nope"],
+                    "'nope'", "top, follow, agent/chase")
+    _one_line_error(capsys, ["log", "video", log, "--out", video, "--width", 4000], "2400x1200")
+    assert list(tmp_path.iterdir()) == []
