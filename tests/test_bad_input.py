@@ -5,8 +5,14 @@ it), the sizes, names and counts of ``deck-sim render`` and ``log video``, the f
 Ctrl-C. Property tests (hypothesis, the deterministic profile of conftest.py) throw generated junk at each."""
 
 import csv
+import io
 import json
+import os
+import signal
 import struct
+import subprocess
+import sys
+import time
 import zipfile
 
 import numpy as np
@@ -18,7 +24,7 @@ from hypothesis import strategies as st
 
 import deck_sim
 from deck_sim.cli import main
-from deck_sim.policies import PolicyFileError, load_actor, make_policy, shipped_policy_path
+from deck_sim.policies import PolicyFileError, load_actor, make_policy, policy_overrides, shipped_policy_path
 from deck_sim.policies.actors import ACTOR_FORMAT
 from deck_sim.recording import EpisodeLog, LogError, recover
 from deck_sim.rollout import open_recorder, run_episode
@@ -381,3 +387,109 @@ def test_render_and_log_video_check_the_camera_and_sizes_before_the_first_frame(
                     "'nope'", "top, follow, agent/chase")
     _one_line_error(capsys, ["log", "video", log, "--out", video, "--width", 4000], "2400x1200")
     assert list(tmp_path.iterdir()) == []
+
+
+# -- deck-sim run ----------------------------------------------------------------------------------------------------
+def test_run_checks_its_folder_before_the_first_episode(tmp_path, capsys, monkeypatch):
+    import deck_sim.rollout
+
+    def never(*args, **kwargs):
+        raise AssertionError("an episode was played")
+
+    monkeypatch.setattr(deck_sim.rollout, "run_episode", never)
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    base = ["run", "--policy", "zero", "--episodes", 2, "--quiet", "--no-record"]
+    _one_line_error(capsys, [*base, "--out", afile / "sub"], "--out", afile / "sub", "cannot write")
+    _one_line_error(capsys, [*base, "--episodes", 0, "--out", tmp_path / "x"], "--episodes")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_episodes_csv_written_as_episodes_end_is_what_a_whole_run_wrote(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["run", "--scene", "deck1", "--policy", "random", "--episodes", "3", "--seed", "5", "--quiet",
+            "--no-record", "--out", str(out), "--predictor", "none", "--scene-set", "episode.time_limit=5"]
+    assert main(args) == 0
+    assert "stopped" not in json.loads((out / "summary.json").read_text())
+    # the same episodes, their table written at the end as one piece
+    overrides = {**policy_overrides("random", "deck1"), "episode__predictor": "none", "episode__time_limit": 5}
+    env = deck_sim.load("deck1", seed=5, **overrides)
+    policy = make_policy("random", env, seed=5)
+    results = [run_episode(env, policy, episode=k) for k in range(3)]
+    assert len({r.outcome for r in results}) > 1 or len({r.reward for r in results}) == 3  # rows that differ
+    whole = io.StringIO(newline="")
+    writer = csv.DictWriter(whole, fieldnames=list(results[0].as_dict()))
+    writer.writeheader()
+    writer.writerows(r.as_dict() for r in results)
+    assert (out / "episodes.csv").read_bytes() == whole.getvalue().encode()
+
+
+def _start_run(out):
+    """``deck-sim run`` of many scripted episodes in a child process that takes SIGINT as a terminal's Ctrl-C."""
+    cmd = [sys.executable, "-m", "deck_sim.cli", "run", "--scene", "deck1", "--policy", "scripted", "--episodes",
+           "200", "--seed", "3", "--out", str(out)]
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "MUJOCO_GL": "disable"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a shell's background job ignores it
+    )
+
+
+def _wait_for_rows(child, table, rows: int) -> None:
+    """Until ``table`` holds ``rows`` episodes (the child runs on)."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if table.exists() and table.read_text().count("\n") >= rows + 1:
+            return
+        assert child.poll() is None, child.communicate()
+        time.sleep(0.05)
+    child.kill()
+    raise AssertionError(f"no {rows} rows in {table} within 120 s")
+
+
+def _rows(table):
+    with open(table, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_a_run_and_keeps_the_finished_episodes(tmp_path):
+    out = tmp_path / "run"
+    child = _start_run(out)
+    try:
+        _wait_for_rows(child, out / "episodes.csv", 1)
+        child.send_signal(signal.SIGINT)
+        stdout, stderr = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == 130, stderr
+    assert "Traceback" not in stderr and "stopped (Ctrl-C) after" in stderr.strip().splitlines()[-1]
+    rows = _rows(out / "episodes.csv")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped"] is True and summary["episodes_finished"] == len(rows) >= 1
+    assert summary["episodes"] == 200 and summary["summary"]["episodes"] == len(rows)
+    assert "Stopped by Ctrl-C" in (out / "results.md").read_text() and "wrote" in stdout
+    log = EpisodeLog(out / "episodes.mcap")  # closed: a valid file, its last episode incomplete
+    assert not log.truncated and [ep.complete for ep in log.episodes][: len(rows)] == [True] * len(rows)
+    for row, ep in zip(rows, log.episodes, strict=False):
+        assert (ep.rescore().result.outcome, ep.rescore().result.steps) == (row["outcome"], int(row["steps"]))
+
+
+@pytest.mark.slow
+def test_a_killed_run_keeps_the_rows_of_its_finished_episodes(tmp_path):
+    out = tmp_path / "run"
+    child = _start_run(out)
+    try:
+        _wait_for_rows(child, out / "episodes.csv", 2)
+    finally:
+        child.kill()
+        child.communicate(timeout=60)
+    assert child.returncode == -signal.SIGKILL
+    text = (out / "episodes.csv").read_text()
+    assert text.endswith("\n")  # whole rows only
+    rows = _rows(out / "episodes.csv")
+    assert len(rows) >= 2 and not (out / "summary.json").exists()
+    log = EpisodeLog(recover(out / "episodes.mcap").path)
+    for row in rows:  # every row's episode is whole in the log too
+        result = log.rescore(int(row["episode"])).result
+        assert (result.outcome, result.steps, repr(result.reward)) == (row["outcome"], int(row["steps"]),
+                                                                        row["reward"])
