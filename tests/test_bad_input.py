@@ -333,6 +333,28 @@ def test_a_damaged_summary_section_is_read_past_and_recover_rebuilds_it(small_lo
     assert "summary section damaged" in capsys.readouterr().out
 
 
+def test_a_chunk_declaring_a_huge_size_is_damage_not_a_memory_error(small_log, tmp_path):
+    path, live = small_log
+    data = bytearray(path.read_bytes())
+    at, chunks = 8, []  # walk the records after the magic: opcode (1 byte), length (8), content
+    while data[at] != 0x0F:  # up to the data end record
+        length = struct.unpack_from("<Q", data, at + 1)[0]
+        if data[at] == 0x06:
+            chunks.append(at)
+        at += 9 + length
+    # a chunk's content: start and end times (8 bytes each), then its uncompressed size
+    struct.pack_into("<Q", data, chunks[3] + 9 + 16, 1 << 62)
+    bad = tmp_path / "huge.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(LogError, match="damaged .*decompresses to"):
+        EpisodeLog(bad)
+    rec = recover(bad, tmp_path / "fixed.mcap")
+    assert rec.was_truncated and 0 < rec.messages
+    for ep in EpisodeLog(rec.path).episodes:
+        if ep.complete:
+            assert ep.rescore().result == live[ep.index]
+
+
 @settings(max_examples=60, deadline=None)
 @given(damage=_DAMAGE, summary_only=st.booleans())
 def test_generated_damage_to_a_log_is_only_a_log_error_or_a_faithful_partial_read(small_log, damage, summary_only):

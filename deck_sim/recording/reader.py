@@ -13,6 +13,7 @@ summary.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import json
 import logging
 import os
@@ -28,8 +29,8 @@ import numpy as np
 import zstandard
 from google.protobuf.message import DecodeError
 from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
-from mcap.records import Attachment, Channel, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -129,6 +130,24 @@ class _Raw:
     summary_damage: str = ""
 
 
+def _unchunked(records: Iterator[Any]) -> Iterator[Any]:
+    """``records`` with each chunk replaced by the records it holds (CRC checked). A zstd chunk is decompressed
+    as a stream and its size compared with the size its header declares afterwards: the mcap package allocates the
+    declared size first, which a damaged header can make any number of bytes."""
+    for record in records:
+        if not isinstance(record, Chunk):
+            yield record
+            continue
+        if record.compression == "zstd":
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(record.data)
+            if len(data) != record.uncompressed_size:
+                raise ValueError(
+                    f"a chunk decompresses to {len(data)} bytes, its header says {record.uncompressed_size}"
+                )
+            record = dataclasses.replace(record, compression="", data=data)
+        yield from breakup_chunk(record, validate_crc=True)
+
+
 def _read_records(path: Path, allow_truncated: bool) -> _Raw:
     """Every complete record of the file's data section; a damaged data section is an error unless
     ``allow_truncated``. The summary section only indexes the data: its records are not read into the log, and
@@ -150,9 +169,9 @@ def _read_records(path: Path, allow_truncated: bool) -> _Raw:
         if stream.read(8) != b"\x89MCAP0\r\n":
             raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
         stream.seek(0)
-        reader = StreamReader(stream, validate_crcs=True, record_size_limit=_RECORD_LIMIT)
+        reader = StreamReader(stream, validate_crcs=True, record_size_limit=_RECORD_LIMIT, emit_chunks=True)
         try:
-            for record in reader.records:
+            for record in _unchunked(reader.records):
                 if isinstance(record, DataEnd | Footer):
                     raw.complete = True
                     footer = record if isinstance(record, Footer) else None
