@@ -7,6 +7,7 @@ obstacles and the target their logged places; wheels and steering stay as the re
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from pathlib import Path
@@ -24,6 +25,57 @@ from deck_sim.types import SceneFrame, StepFrame
 
 _PATH_RGBA = np.array([0.85, 0.15, 0.1, 1.0], dtype=np.float32)
 _PREDICTION_RGBA = np.array([0.2, 0.6, 1.0, 1.0], dtype=np.float32)
+
+VIDEO_SUFFIXES = (".mp4", ".mkv", ".mov", ".avi", ".gif")
+"""File extensions a video is written with (``render_episode``, ``deck-sim render``, ``deck-sim log video``)."""
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+"""File extensions a picture is written with (``deck-sim render --png``)."""
+MIN_FRAME = 16
+"""Pixels: the smallest side of a rendered frame (the video encoder works on blocks of 16 pixels)."""
+
+
+def check_suffix(name: str, path: str | os.PathLike[str], suffixes: tuple[str, ...]) -> Path:
+    """``path`` if its extension is one of ``suffixes`` (any case); ``ValueError`` naming ``name`` otherwise."""
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(
+            f"{name} {str(path)!r}: the file name needs one of the extensions {', '.join(suffixes)} "
+            "(the extension chooses the format)"
+        )
+    return path
+
+
+def check_count(name: str, value: int | None, least: int = 1) -> None:
+    """``ValueError`` naming ``name`` unless ``value`` is ``None`` or an integer of at least ``least``."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least):
+        raise ValueError(f"{name} must be an integer of at least {least}, got {value!r}")
+
+
+def check_speedup(name: str, value: float) -> None:
+    """``ValueError`` naming ``name`` unless ``value`` (playback speed over simulated time) is finite and positive."""
+    if not (isinstance(value, int | float | np.number) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number (playback speed over simulated time), got {value!r}")
+
+
+def camera_names(physics: mjcf.Physics) -> tuple[str, ...]:
+    """The named cameras of the compiled model (``top``, ``follow``, ``agent/chase`` in deck_sim's scenes)."""
+    model = physics.model
+    return tuple(model.id2name(i, "camera") for i in range(model.ncam))
+
+
+def check_view(physics: mjcf.Physics, camera: str, frames: dict[str, tuple[int, int]]) -> None:
+    """``ValueError`` unless ``camera`` is a camera of the model and every frame (``what -> (width, height)``,
+    pixels) fits MuJoCo's offscreen buffer (``<visual><global offwidth offheight>`` of the scene's XML)."""
+    names = camera_names(physics)
+    if camera not in names:
+        raise ValueError(f"camera {camera!r} is not in the scene; its cameras are {', '.join(names)}")
+    glob = physics.model.vis.global_
+    for what, (width, height) in frames.items():
+        if not (MIN_FRAME <= width <= glob.offwidth and MIN_FRAME <= height <= glob.offheight):
+            raise ValueError(
+                f"{what} of {width}x{height} pixels does not fit: each side must be at least {MIN_FRAME} and at most "
+                f"the scene's offscreen buffer of {glob.offwidth}x{glob.offheight} pixels"
+            )
 
 
 def replay_environment(log: EpisodeLog) -> composer.Environment:
@@ -82,6 +134,7 @@ def render_episode(
     (red) and the movers' predictions (blue) drawn in.
 
     Args:
+        out: The video file; its extension (``VIDEO_SUFFIXES``) chooses the format.
         width: Frame width in pixels (rounded to a multiple of 16).
         height: Frame height; default: the width over the top view's aspect (``camera="top"``) or 3/4 of it.
         camera: ``top`` (the whole surface from above), ``follow`` or ``agent/chase``.
@@ -90,9 +143,19 @@ def render_episode(
 
     Returns:
         (path, frames, frames per second).
+
+    Raises:
+        ValueError: ``out`` has no video extension, a size, ``speedup`` or ``max_steps`` is out of range, or
+            ``camera`` is not one of the scene's (checked before anything is rendered).
+        LogError: the episode holds no step.
     """
     import imageio.v3 as iio
 
+    out = check_suffix("out", out, VIDEO_SUFFIXES)
+    check_count("width", width, MIN_FRAME)
+    check_count("height", height, MIN_FRAME)
+    check_speedup("speedup", speedup)
+    check_count("max_steps", max_steps)
     steps = episode.steps if max_steps is None else episode.steps[: max_steps + 1]
     if not steps:
         raise LogError(f"episode {episode.index} holds no steps to render")
@@ -100,6 +163,7 @@ def render_episode(
     if height is None:
         height = width / env.task.top_view_aspect if camera == "top" else 0.75 * width
     height = max(16, int(round(height / 16)) * 16)
+    check_view(env.physics, camera, {"a frame": (width, height)})
     z = 0.6
     frames = []
     path: list[np.ndarray] = []
@@ -118,7 +182,6 @@ def render_episode(
         )
         frames.append(env.physics.render(height, width, camera_id=camera, overlays=(text,), scene_callback=draw))
     fps = speedup / episode.scene.dt
-    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(out, np.stack(frames), fps=fps, codec="libx264", macro_block_size=16)
     return out, len(frames), fps

@@ -3,6 +3,11 @@
 ``import deck_sim`` registers ``deck_sim/Deck1-v0``, ``deck_sim/Deck2-v0`` and ``deck_sim/Square-v0``
 (``deck_sim.registration``), so ``gymnasium.make`` builds this environment. Episodes end by termination (goal,
 collision, leaving the surface, divergence: discount 0) or truncation (the scene's time limit).
+
+``step`` before the first ``reset``, or after an episode ended (terminated or truncated), raises
+``gymnasium.error.ResetNeeded``, the error of Gymnasium's own order-enforcing wrapper; an action that is not a
+finite pair of real numbers in [-1, 1] raises ``deck_sim.tasks.navigate.InvalidActionError`` and leaves the episode
+as it was.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from deck_sim.environment import load
 from deck_sim.registration import GYM_IDS, register_envs
@@ -54,6 +60,7 @@ class DeckSimEnv(gymnasium.Env):
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self._env.task.control_timestep)}
+        self._needs_reset = True  # before the first reset and after an episode's end
 
     @property
     def composer_env(self):  # noqa: ANN201 - dm_control composer.Environment
@@ -74,13 +81,25 @@ class DeckSimEnv(gymnasium.Env):
         if seed is not None:
             self._env.random_state.seed(seed)
         ts = self._env.reset()
+        self._needs_reset = False
         return self._flatten(ts.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Advance one decision period (``task.control_timestep`` seconds)."""
-        ts = self._env.step(np.asarray(action, dtype=np.float64))
+        """Advance one decision period (``task.control_timestep`` seconds).
+
+        Raises:
+            gymnasium.error.ResetNeeded: no episode is running (before the first ``reset``, or after the last step
+                returned ``terminated`` or ``truncated``).
+            deck_sim.tasks.navigate.InvalidActionError: ``action`` is not a finite pair of real numbers in [-1, 1].
+        """
+        if self._needs_reset:
+            raise ResetNeeded(
+                "DeckSimEnv.step: no episode is running (the last one ended, or none began); call reset() first"
+            )
+        ts = self._env.step(action)  # the task checks the action and reads it as float64
         terminated = bool(ts.last() and ts.discount == 0.0)
         truncated = bool(ts.last() and not terminated)
+        self._needs_reset = terminated or truncated
         return self._flatten(ts.observation), float(ts.reward), terminated, truncated, self._info()
 
     def render(self) -> np.ndarray | None:

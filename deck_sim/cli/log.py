@@ -29,6 +29,8 @@ def cmd_log_info(args: argparse.Namespace) -> int:
         f"episodes  {len(log.episodes)} ({len(complete)} complete), {log.duration:.1f} s simulated; "
         f"attachments: {', '.join(sorted(log.attachments)) or '-'}"
     )
+    if log.summary_damage:
+        print(f"summary   damaged at {log.summary_damage}; the data section is whole and was read in full")
     print("topics")
     for t in sorted(log.topics.values(), key=lambda t: t.topic):
         print(f"  {t.topic:14s} {t.schema_name:26s} {t.message_encoding:9s} {t.count:7d} messages")
@@ -84,8 +86,22 @@ def cmd_log_plot(args: argparse.Namespace) -> int:
 def cmd_log_video(args: argparse.Namespace) -> int:
     """Pose every logged step in MuJoCo and render it to an MP4."""
     from deck_sim.recording import EpisodeLog
-    from deck_sim.replay import render_episode, replay_environment
+    from deck_sim.replay import (
+        MIN_FRAME,
+        VIDEO_SUFFIXES,
+        check_count,
+        check_speedup,
+        check_suffix,
+        render_episode,
+        replay_environment,
+    )
 
+    # the arguments first, before the log is read and the scene built (render_episode checks the camera)
+    if args.out:
+        check_suffix("--out", args.out, VIDEO_SUFFIXES)
+    check_count("--width", args.width, MIN_FRAME)
+    check_speedup("--speedup", args.speedup)
+    check_count("--max-steps", args.max_steps)
     log = EpisodeLog(args.file)
     ep = _log_episode(log, args.episode)
     out = Path(args.out) if args.out else log.path.with_name(f"{log.path.stem}-episode{ep.index}.mp4")
@@ -147,11 +163,16 @@ def cmd_log_export(args: argparse.Namespace) -> int:
 
 
 def cmd_log_recover(args: argparse.Namespace) -> int:
-    """Copy every complete message of a truncated log into a new, valid file."""
+    """Copy every complete message of a truncated or damaged log into a new, valid file with a new summary."""
     from deck_sim.recording import recover
 
     rec = recover(args.file, args.out)
-    state = f"truncated at {rec.stopped_at}" if rec.was_truncated else "whole (nothing was lost)"
+    if rec.was_truncated:
+        state = f"truncated at {rec.stopped_at}"
+    elif rec.summary_damage:
+        state = f"whole in its data, its summary section damaged at {rec.summary_damage} (the copy has a new one)"
+    else:
+        state = "whole (nothing was lost)"
     print(
         f"wrote {rec.path}: {rec.messages} messages, {rec.episodes_complete} complete episode(s), "
         f"{rec.episodes_incomplete} incomplete; the source was {state}"
@@ -182,7 +203,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", help="the MCAP episode log")
     p.add_argument("--episode", type=int, default=None, help="episode index (default: the first)")
     p.add_argument("--out", default=None, help="MP4 path (default: beside the log)")
-    p.add_argument("--width", type=int, default=640, help="frame width in pixels")
+    p.add_argument("--width", type=int, default=640, help="frame width in pixels (rounded to a multiple of 16)")
     p.add_argument("--camera", default="top", help="top, follow or agent/chase")
     p.add_argument("--speedup", type=float, default=4.0, help="playback speed over simulated time")
     p.add_argument("--max-steps", type=int, default=None, help="render at most this many steps")
@@ -192,6 +213,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--csv", action="store_true", help="write CSV (the one format)")
     p.add_argument("--out", default=None, help="folder for the CSV files (default: beside the log)")
 
-    p = add_command(log_sub, "recover", cmd_log_recover, "turn a truncated log (writer killed) into a valid one")
-    p.add_argument("file", help="the truncated MCAP episode log")
+    p = add_command(log_sub, "recover", cmd_log_recover,
+                    "turn a truncated or damaged log (writer killed) into a valid one")
+    p.add_argument("file", help="the truncated or damaged MCAP episode log")
     p.add_argument("--out", default=None, help="output path (default: <name>.recovered.mcap beside it)")

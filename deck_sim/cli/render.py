@@ -9,6 +9,9 @@ import numpy as np
 
 from deck_sim.cli._common import add_command
 
+CAMERA = "agent/chase"
+"""The camera the video is filmed from."""
+
 
 def cmd_render(args: argparse.Namespace) -> int:
     """Play one episode for at most ``--steps`` steps, filming it from the agent's chase camera."""
@@ -16,24 +19,42 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     import deck_sim
     from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.replay import (
+        IMAGE_SUFFIXES,
+        MIN_FRAME,
+        VIDEO_SUFFIXES,
+        check_count,
+        check_speedup,
+        check_suffix,
+        check_view,
+    )
 
+    # every argument is checked before the scene is built, every size before the first frame
+    out = check_suffix("--out", args.out, VIDEO_SUFFIXES)
+    png = check_suffix("--png", args.png, IMAGE_SUFFIXES) if args.png else out.with_suffix(".png")
+    if png.resolve() == out.resolve():
+        raise ValueError(f"--png {png}: the picture would overwrite the video; give another path")
+    for flag, value in (("--width", args.width), ("--height", args.height), ("--top-height", args.top_height)):
+        check_count(flag, value, MIN_FRAME)
+    check_count("--steps", args.steps)
+    check_speedup("--speedup", args.speedup)
     env = deck_sim.load(args.scene, seed=args.seed, **policy_overrides(args.policy, Path(args.scene).stem))
+    h = args.top_height
+    w = int(round(h * env.task.top_view_aspect / 8)) * 8
+    check_view(env.physics, CAMERA, {"--width x --height": (args.width, args.height)})
+    check_view(env.physics, "top", {f"the top-down picture (--top-height {h})": (w, h)})
     policy = make_policy(args.policy, env, seed=args.seed)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ts = env.reset()
     policy.reset()
-    frames = [env.physics.render(args.height, args.width, camera_id="agent/chase")]
+    frames = [env.physics.render(args.height, args.width, camera_id=CAMERA)]
     steps = 0
     while not ts.last() and steps < args.steps:
         ts = env.step(policy.act(ts.observation))
-        frames.append(env.physics.render(args.height, args.width, camera_id="agent/chase"))
+        frames.append(env.physics.render(args.height, args.width, camera_id=CAMERA))
         steps += 1
     fps = args.speedup / env.task.control_timestep
     iio.imwrite(out, np.stack(frames), fps=fps, codec="libx264", macro_block_size=8)
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    h = args.top_height
-    w = int(round(h * env.task.top_view_aspect / 8)) * 8
     iio.imwrite(png, env.physics.render(h, w, camera_id="top"))
     outcome = env.task.last_info
     print(
@@ -54,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", default="deck1", help="scene name or TOML path")
     p.add_argument("--policy", default="scripted", help=policy_help())
     p.add_argument("--seed", type=int, default=0, help="seeds the layout and movers")
-    p.add_argument("--out", default="ep.mp4", help="video path")
+    p.add_argument("--out", default="ep.mp4", help="video path (.mp4, .mkv, .mov, .avi or .gif)")
     p.add_argument("--png", default=None, help="top-down picture path (default: the video's, .png)")
     p.add_argument("--steps", type=int, default=120, help="control steps at most")
     p.add_argument("--width", type=int, default=480, help="video width in pixels")

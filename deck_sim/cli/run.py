@@ -6,11 +6,18 @@ import argparse
 import contextlib
 import csv
 import json
+import sys
 import time
+from collections.abc import Sequence
+from dataclasses import fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from deck_sim.cli._common import add_command, policy_label, scene_overrides
 from deck_sim.progress import progress
+
+if TYPE_CHECKING:
+    from deck_sim.metrics import EpisodeResult
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
@@ -54,13 +61,34 @@ def format_summary(name: str, policy: str, predictor: str, summary: dict[str, fl
     return "\n".join(lines)
 
 
+INTERRUPTED = 130
+"""Exit code of a run stopped by Ctrl-C (SIGINT): 128 + the signal's number, as a shell reports a process that
+SIGINT ended, so scripts tell it from bad input (2) and from success (0)."""
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    """Play ``--episodes`` episodes, print the metrics and write them (and the episode log) into the run's folder."""
+    """Play ``--episodes`` episodes, print the metrics and write them (and the episode log) into the run's folder.
+
+    ``episodes.csv`` gets each episode's row as the episode ends, so a killed run keeps its finished rows (as its
+    log keeps its finished episodes). Ctrl-C stops the run cleanly: the results of the episodes that finished are
+    written (``summary.json`` marked ``"stopped"``), the log is closed, and the exit code is ``INTERRUPTED``.
+    """
+    try:
+        return _play(args)
+    except KeyboardInterrupt:  # while the scene loads, or a second Ctrl-C while the results are written
+        print("deck-sim run: stopped (Ctrl-C)", file=sys.stderr)
+        return INTERRUPTED
+
+
+def _play(args: argparse.Namespace) -> int:
+    """``cmd_run`` but for a Ctrl-C outside the episodes."""
     import deck_sim
     from deck_sim.metrics import summarize
     from deck_sim.policies import make_policy, policy_overrides
     from deck_sim.rollout import run_episode
 
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
     overrides = policy_overrides(args.policy, Path(args.scene).stem)
     if args.predictor:
         overrides["episode__predictor"] = args.predictor
@@ -80,25 +108,38 @@ def cmd_run(args: argparse.Namespace) -> int:
     variant = "".join(f"-{k.split('__', 1)[1]}={v}" for k, v in scene_set.items())
     default_out = Path("runs") / f"{args.scene}-{policy_label(args.policy)}-seed{args.seed}{variant}"
     out = Path(args.out) if args.out else default_out
-    recorder = _open_run_recorder(args, env, out)
     results = []
+    stopped = False
     t0 = time.perf_counter()
-    bar = progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
-    with bar, recorder or contextlib.nullcontext():  # the log is finished even if a run fails
-        for k in bar:
-            r = run_episode(env, policy, episode=k, recorder=recorder)
-            results.append(r)
-            wins = sum(x.outcome == "goal" for x in results)
-            bar.set_postfix(success=f"{100 * wins / len(results):.0f}%", last=r.outcome)
+    with contextlib.ExitStack() as stack:
+        table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder"))
+        recorder = _open_run_recorder(args, env, out)
+        if recorder is not None:
+            stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
+        bar = stack.enter_context(
+            progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
+        )
+        try:
+            for k in bar:
+                r = run_episode(env, policy, episode=k, recorder=recorder)
+                results.append(r)
+                table.write(results)
+                wins = sum(x.outcome == "goal" for x in results)
+                bar.set_postfix(success=f"{100 * wins / len(results):.0f}%", last=r.outcome)
+        except KeyboardInterrupt:
+            stopped = True
+        table.write(results)
     wall = time.perf_counter() - t0
+    if not results:
+        print(
+            f"deck-sim run: stopped (Ctrl-C) before the first episode finished; {out / 'episodes.csv'} holds only "
+            "its header" + (f", {recorder.path} the unfinished episode" if recorder is not None else ""),
+            file=sys.stderr,
+        )
+        return INTERRUPTED
     summary = summarize(results)
-    table = format_summary(args.scene, args.policy, predictor, summary, wall)
-    print(table)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "episodes.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(results[0].as_dict()))
-        writer.writeheader()
-        writer.writerows(r.as_dict() for r in results)
+    table_text = format_summary(args.scene, args.policy, predictor, summary, wall)
+    print(table_text)
     meta = {
         "scene": args.scene,
         "policy": args.policy,
@@ -110,12 +151,62 @@ def cmd_run(args: argparse.Namespace) -> int:
         "summary": summary,
         "wall_s": wall,
     }
+    note = ""
+    if stopped:
+        meta.update(stopped=True, episodes_finished=len(results))
+        note = f"\nStopped by Ctrl-C after {len(results)} of {args.episodes} episodes: the table covers those.\n"
     (out / "summary.json").write_text(json.dumps(meta, indent=2))
-    (out / "results.md").write_text(table + "\n")
+    (out / "results.md").write_text(table_text + "\n" + note)
     print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'}")
     if recorder is not None:
         print(f"wrote {recorder.path} (episode log: deck-sim log info {recorder.path})")
+    if stopped:
+        log_note = "" if recorder is None else f"; {recorder.path} is closed, the unfinished episode incomplete"
+        print(
+            f"deck-sim run: stopped (Ctrl-C) after {len(results)} of {args.episodes} episodes; their results are "
+            f"written to {out} (summary.json marked stopped){log_note}",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
     return 0
+
+
+class _EpisodeTable:
+    """``episodes.csv`` of a run, one row per episode written (and flushed) as the episode ends.
+
+    Opening it creates the run's folder and proves it writable before any episode is played; it removes the
+    ``summary.json`` and ``results.md`` of an earlier run in that folder, which would not describe this one.
+    """
+
+    def __init__(self, out: Path, label: str) -> None:
+        from deck_sim.metrics import EpisodeResult
+
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"{label} {out}: a file, not a folder")
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            self._file = open(out / "episodes.csv", "w", newline="")  # noqa: SIM115 - closed by __exit__
+            for name in ("summary.json", "results.md"):
+                (out / name).unlink(missing_ok=True)
+        except OSError as err:
+            raise ValueError(f"{label} {out}: cannot write the run's files there ({err.strerror or err})") from None
+        self._writer = csv.DictWriter(self._file, fieldnames=[f.name for f in fields(EpisodeResult)])
+        self._writer.writeheader()
+        self._file.flush()
+        self._written = 0
+
+    def write(self, results: Sequence[EpisodeResult]) -> None:
+        """Append the rows of ``results`` not yet written, and flush them to the disk."""
+        for r in results[self._written :]:
+            self._writer.writerow(r.as_dict())
+            self._written += 1
+        self._file.flush()
+
+    def __enter__(self) -> _EpisodeTable:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._file.close()
 
 
 def _add_record_arguments(p: argparse.ArgumentParser) -> None:

@@ -11,7 +11,9 @@ from __future__ import annotations
 import json
 import os
 import re
+import struct
 import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -53,6 +55,16 @@ HEADS = {
 
 class PolicyFileError(ValueError):
     """An actor file is missing, corrupt, or does not fit the environment it is asked to act in."""
+
+
+_DAMAGED_FILE_ERRORS = (
+    OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError, OverflowError,
+    MemoryError, KeyError, struct.error,
+)
+"""What ``numpy.load`` and ``zipfile`` raise on a damaged ``.npz``: a bad zip structure or CRC (``BadZipFile``), a
+damaged deflate stream (``zlib.error``), a flipped compression method (``NotImplementedError``) or encryption flag
+(``RuntimeError``), headers cut short (``struct.error``, ``EOFError``, ``KeyError``), an ``.npy`` header naming an
+impossible shape or dtype (``ValueError``, ``MemoryError``, ``OverflowError``)."""
 
 
 def obstacle_sets(shapes: Mapping[str, Sequence[int]]) -> dict[str, list[str]]:
@@ -148,14 +160,13 @@ class LearnedPolicy:
             self.weights, self.biases = _layers(arrays, "")
             self.sets: dict[str, list[str]] = _sets_record(self.meta["sets"]) if fmt == ACTOR_FORMAT_SETS else {}
             self.encoders = {name: _layers(arrays, f"{name}.") for name in self.sets}
-            self.norm_enabled = bool(arrays["norm_enabled"])
-            self.norm_mean = np.asarray(arrays["norm_mean"], dtype=np.float64)
-            self.norm_std = np.asarray(arrays["norm_std"], dtype=np.float64)
-            self.norm_clip = float(arrays["norm_clip"])
-            self.action_table = (
-                np.asarray(arrays["action_table"], dtype=np.float64) if self.head == "argmax" else None
-            )
-        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as err:
+            self.norm_enabled = bool(_real(arrays, "norm_enabled"))
+            self.norm_mean = _real(arrays, "norm_mean")
+            self.norm_std = _real(arrays, "norm_std")
+            self.norm_clip = float(_real(arrays, "norm_clip"))
+            self.action_table = _real(arrays, "action_table") if self.head == "argmax" else None
+            self._read_scene_overrides()  # a malformed record fails here, on loading, not when the scene is built
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as err:
             raise PolicyFileError(f"{source}: not a complete deck_sim actor ({err!r} missing or malformed)") from err
         if self.activation not in ACTIVATIONS:
             raise PolicyFileError(f"{source}: activation {self.activation!r}, expected one of {ACTIVATIONS}")
@@ -215,6 +226,10 @@ class LearnedPolicy:
         on the obstacles within its near field, the ``episode__near_steps`` and
         ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its
         training overrode (the observation's keys and shapes cannot tell those)."""
+        return self._read_scene_overrides()
+
+    def _read_scene_overrides(self) -> dict[str, Any]:
+        """``scene_overrides`` read from ``meta`` as it is now (``TypeError`` or ``ValueError`` if malformed)."""
         out: dict[str, Any] = {"episode__predictor": self.predictor}
         if "static_nearest" in self.keys:
             out["episode__obstacle_shape"] = True
@@ -302,11 +317,19 @@ def _sets_record(record: Any) -> dict[str, list[str]]:
     return {str(name): list(keys) for name, keys in record.items()}
 
 
+def _real(arrays: Mapping[str, np.ndarray], key: str) -> np.ndarray:
+    """Array ``key`` as float64; ``KeyError`` if absent, ``ValueError`` unless it holds real numbers (bool, integer or
+    float: not complex, text or bytes)."""
+    a = np.asarray(arrays[key])
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"array {key!r} has dtype {a.dtype}, not a real number type")
+    return a.astype(np.float64, copy=False)
+
+
 def _layers(arrays: Mapping[str, np.ndarray], prefix: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The weights and biases ``<prefix>w<i>``, ``<prefix>b<i>`` of one MLP (as float64), in order."""
     n = sum(1 for k in arrays if re.fullmatch(re.escape(prefix) + r"w\d+", k))
-    return ([np.asarray(arrays[f"{prefix}w{i}"], dtype=np.float64) for i in range(n)],
-            [np.asarray(arrays[f"{prefix}b{i}"], dtype=np.float64) for i in range(n)])
+    return ([_real(arrays, f"{prefix}w{i}") for i in range(n)], [_real(arrays, f"{prefix}b{i}") for i in range(n)])
 
 
 def _check_layers(weights: Sequence[np.ndarray], biases: Sequence[np.ndarray], inputs: int, source: str) -> None:
@@ -437,8 +460,11 @@ def _read_actor_file(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray
             arrays = {k: data[k] for k in data.files}
     except FileNotFoundError as err:
         raise PolicyFileError(f"{path}: no such actor file") from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise PolicyFileError(f"{path}: not a readable actor file ({err})") from err
+    except IsADirectoryError as err:
+        raise PolicyFileError(f"{path}: is a directory, not an actor file") from err
+    except _DAMAGED_FILE_ERRORS as err:
+        what = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+        raise PolicyFileError(f"{path}: not a readable actor file, damaged or not an .npz ({what})") from err
     if "meta" not in arrays:
         raise PolicyFileError(f"{path}: not a deck_sim actor file (no 'meta' record)")
     try:

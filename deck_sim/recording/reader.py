@@ -1,19 +1,24 @@
 """``EpisodeLog``: read an episode log back (steps, episodes, events), re-score it offline, and ``recover`` a log
 whose writer was killed.
 
-Built on the ``mcap`` package: one sequential pass over the file's records (``mcap.stream_reader.StreamReader``)
+Built on the ``mcap`` package: one sequential pass over the file's data section (``mcap.stream_reader.StreamReader``)
 collects schemas, channels, messages, metadata and attachments; protobuf messages are decoded with the schemas
 stored in the file (``mcap_protobuf.decoder.DecoderFactory``), so reading needs no Foxglove package. Every
 failure of the file itself (missing, empty, not MCAP, truncated, corrupt, not a deck_sim log) raises ``LogError``
-naming the file and the problem.
+naming the file and the problem, except damage confined to the summary section (the index that follows the data,
+checked against its CRC): the data is read in full, with a warning, and ``recover`` writes a copy with a new
+summary.
 """
 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import json
+import logging
 import os
 import struct
+import zlib
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -22,9 +27,10 @@ from typing import Any
 
 import numpy as np
 import zstandard
+from google.protobuf.message import DecodeError
 from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
-from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -32,8 +38,13 @@ from deck_sim.metrics import EpisodeResult, outcome_of, path_length, prediction_
 from deck_sim.recording import schema
 from deck_sim.types import SceneFrame, StepFrame
 
+_logger = logging.getLogger(__name__)
+
 _FILE_ERRORS = (McapError, struct.error, EOFError, ValueError, IndexError, KeyError, zstandard.ZstdError)
 """What the mcap package raises on a damaged file (CRC errors are ``ValueError``)."""
+_DECODE_ERRORS = (*_FILE_ERRORS, DecodeError, TypeError)
+"""What decoding a damaged message or schema raises (protobuf's ``DecodeError``; ``TypeError`` from a descriptor
+that does not build)."""
 _RECORD_LIMIT = 1 << 30  # bytes: a larger record length is corruption, not data
 
 
@@ -43,7 +54,8 @@ class LogError(ValueError):
 
 
 class TruncatedLogError(LogError):
-    """The log ends before its footer: its writer stopped mid-file (killed or crashed). ``recover`` repairs it.
+    """The log ends before its data section does: its writer stopped mid-file (killed or crashed). ``recover``
+    repairs it.
 
     (A log damaged inside, e.g. a chunk failing its CRC, raises ``LogError``; ``recover`` keeps what precedes the
     damage.)"""
@@ -98,7 +110,14 @@ class EpisodeScore:
 
 @dataclass
 class _Raw:
-    """The records of a log, in file order."""
+    """The records of a log's data section, in file order.
+
+    Attributes:
+        complete: The data section is whole: its ``DataEnd`` record (with its CRC) or the footer was read.
+        stopped_at: Where and why reading stopped inside the data section ("" if it did not).
+        summary_damage: Where and how the summary section (what follows the data: schemas and channels again,
+            indexes, statistics, footer, closing magic) is damaged ("" if it is whole or absent).
+    """
 
     header: Header | None = None
     schemas: dict[int, Schema] = field(default_factory=dict)
@@ -108,10 +127,31 @@ class _Raw:
     attachments: list[Attachment] = field(default_factory=list)
     complete: bool = False
     stopped_at: str = ""
+    summary_damage: str = ""
+
+
+def _unchunked(records: Iterator[Any]) -> Iterator[Any]:
+    """``records`` with each chunk replaced by the records it holds (CRC checked). A zstd chunk is decompressed
+    as a stream and its size compared with the size its header declares afterwards: the mcap package allocates the
+    declared size first, which a damaged header can make any number of bytes."""
+    for record in records:
+        if not isinstance(record, Chunk):
+            yield record
+            continue
+        if record.compression == "zstd":
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(record.data)
+            if len(data) != record.uncompressed_size:
+                raise ValueError(
+                    f"a chunk decompresses to {len(data)} bytes, its header says {record.uncompressed_size}"
+                )
+            record = dataclasses.replace(record, compression="", data=data)
+        yield from breakup_chunk(record, validate_crc=True)
 
 
 def _read_records(path: Path, allow_truncated: bool) -> _Raw:
-    """Every complete record of the file; a damaged tail is an error unless ``allow_truncated``."""
+    """Every complete record of the file's data section; a damaged data section is an error unless
+    ``allow_truncated``. The summary section only indexes the data: its records are not read into the log, and
+    damage to it (a failed record or a summary CRC that does not match) is reported in ``summary_damage``."""
     try:
         size = path.stat().st_size
         stream = open(path, "rb")  # noqa: SIM115 - closed below
@@ -122,36 +162,44 @@ def _read_records(path: Path, allow_truncated: bool) -> _Raw:
     except OSError as err:
         raise LogError(f"{path}: cannot open: {err.strerror}") from None
     raw = _Raw()
+    footer: Footer | None = None
     with stream:
         if size == 0:
             raise LogError(f"{path}: empty file, not an MCAP log")
         if stream.read(8) != b"\x89MCAP0\r\n":
             raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
         stream.seek(0)
-        reader = StreamReader(stream, validate_crcs=True, record_size_limit=_RECORD_LIMIT)
+        reader = StreamReader(stream, validate_crcs=True, record_size_limit=_RECORD_LIMIT, emit_chunks=True)
         try:
-            for record in reader.records:
-                if isinstance(record, Message):
+            for record in _unchunked(reader.records):
+                if isinstance(record, DataEnd | Footer):
+                    raw.complete = True
+                    footer = record if isinstance(record, Footer) else None
+                elif raw.complete:
+                    continue  # the summary section: copies of schemas and channels, indexes, statistics
+                elif isinstance(record, Message):
                     raw.messages.append(record)
                 elif isinstance(record, Schema):
-                    raw.schemas[record.id] = record
+                    raw.schemas.setdefault(record.id, record)
                 elif isinstance(record, Channel):
-                    raw.channels[record.id] = record
+                    raw.channels.setdefault(record.id, record)
                 elif isinstance(record, Metadata):
                     raw.metadata.append(record)
                 elif isinstance(record, Attachment):
                     raw.attachments.append(record)
                 elif isinstance(record, Header):
                     raw.header = record
-                elif isinstance(record, Footer):
-                    raw.complete = True
+            end = stream.tell()
         except _FILE_ERRORS as err:
             at = stream.tell()
             what = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+            if raw.complete:  # the data section is whole; what follows it is damaged or cut
+                raw.summary_damage = f"byte {at} of {size} ({what})"
+                return raw
             raw.stopped_at = f"byte {at} of {size} ({what})"
             # running out of bytes (or a record longer than the rest of the file) is a cut; anything else damage
             cut = isinstance(err, EndOfFile | struct.error | RecordLengthLimitExceeded) or at >= size
-            if raw.complete or allow_truncated:  # damage after the footer leaves the content whole
+            if allow_truncated:
                 pass
             elif cut:
                 raise TruncatedLogError(
@@ -164,6 +212,21 @@ def _read_records(path: Path, allow_truncated: bool) -> _Raw:
                     f"{path}: the log is damaged at byte {at} of {size} ({what}). `deck-sim log recover {path}` "
                     "writes a valid copy holding every record before the damage"
                 ) from None
+            return raw
+        if footer is not None and footer.summary_start and footer.summary_crc:
+            # the CRC covers the summary section and the footer up to the CRC itself (the footer's last 4 bytes,
+            # followed by the 8 magic bytes)
+            crc_at = end - 8 - 4
+            if not 0 < footer.summary_start <= crc_at:
+                raw.summary_damage = (
+                    f"the footer's summary start, byte {footer.summary_start}, lies outside the file's {size} bytes"
+                )
+            else:
+                stream.seek(footer.summary_start)
+                if zlib.crc32(stream.read(crc_at - footer.summary_start)) != footer.summary_crc:
+                    raw.summary_damage = (
+                        f"bytes {footer.summary_start} to {crc_at} of {size} (the summary section's CRC does not match)"
+                    )
     return raw
 
 
@@ -335,13 +398,18 @@ class LoggedEpisode:
 class EpisodeLog:
     """An episode log written by ``EpisodeRecorder``, read whole on construction.
 
+    A log whose data section is whole but whose summary section (the index after the data) is damaged or cut is
+    read in full from its data section: ``summary_damage`` says where, and a warning is logged (other MCAP readers
+    need the summary: ``recover`` writes a copy with a new one).
+
     Args:
         path: The ``.mcap`` file.
         allow_truncated: Read what a truncated log holds instead of raising ``TruncatedLogError``.
 
     Attributes:
         path: The file.
-        truncated: The file ends before its footer (only with ``allow_truncated``).
+        truncated: The data section ends early, cut or damaged (only with ``allow_truncated``).
+        summary_damage: Where and how the summary section is damaged ("" if it is whole).
         metadata: The run's ``deck_sim`` metadata record (scene, seed, predictor, policy, versions, ...).
         attachments: Stored files by name: (media type, bytes).
         library: The writer's library string from the MCAP header.
@@ -355,6 +423,13 @@ class EpisodeLog:
         self.path = Path(path)
         raw = _read_records(self.path, allow_truncated)
         self.truncated = not raw.complete
+        self.summary_damage = raw.summary_damage
+        if raw.summary_damage:
+            _logger.warning(
+                "%s: the summary section (the index after the data) is damaged at %s; the data section is whole and "
+                "was read in full. `deck-sim log recover %s` writes a copy with a new summary",
+                self.path, raw.summary_damage, self.path,
+            )
         self.library = raw.header.library if raw.header else ""
         records = {m.name: dict(m.metadata) for m in raw.metadata}
         if schema.METADATA_NAME not in records:
@@ -379,7 +454,7 @@ class EpisodeLog:
             else:
                 try:
                     decoders[ch.id] = factory.decoder_for(ch.message_encoding, sch)
-                except _FILE_ERRORS as err:
+                except _DECODE_ERRORS as err:
                     raise LogError(f"{self.path}: cannot decode topic {ch.topic}: {err}") from None
         by_topic: dict[str, list[tuple[Message, Any]]] = defaultdict(list)
         for m in raw.messages:
@@ -391,7 +466,7 @@ class EpisodeLog:
             if ch.topic in (schema.STATE, schema.EVENTS, schema.SCENE):
                 try:
                     by_topic[ch.topic].append((m, decode(m.data)))
-                except _FILE_ERRORS as err:
+                except _DECODE_ERRORS as err:
                     raise LogError(
                         f"{self.path}: a {ch.topic} message at {m.log_time} ns does not decode: {err}"
                     ) from None
@@ -440,7 +515,7 @@ class EpisodeLog:
     def _decode_message(self, m: Message) -> Any:
         try:
             return self._decoders[m.channel_id](m.data)
-        except _FILE_ERRORS as err:
+        except _DECODE_ERRORS as err:
             topic = self._raw.channels[m.channel_id].topic
             raise LogError(f"{self.path}: a {topic} message at {m.log_time} ns does not decode: {err}") from None
 
@@ -488,11 +563,13 @@ class Recovery:
 
     Attributes:
         path: The valid log written.
-        was_truncated: The source ended before its footer.
+        was_truncated: The source's data section ended early (cut or damaged).
         messages: Messages copied.
         episodes_complete: Complete episodes in the copy.
         episodes_incomplete: Episodes whose end was lost (0 or 1).
-        stopped_at: Where and why reading the source stopped ("" if it was whole).
+        stopped_at: Where and why reading the source stopped ("" if its data section was whole).
+        summary_damage: Where and how the source's summary section was damaged ("" if it was whole); the copy has
+            a new one.
     """
 
     path: Path
@@ -501,17 +578,20 @@ class Recovery:
     episodes_complete: int
     episodes_incomplete: int
     stopped_at: str
+    summary_damage: str = ""
 
 
 def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None) -> Recovery:
-    """Copy every complete record of a (truncated) log into a new, valid MCAP file.
+    """Copy every complete record of a (truncated or damaged) log's data section into a new, valid MCAP file,
+    with a new summary section.
 
     Args:
         path: The damaged log.
         out: Where to write the copy (default: beside it, ``<name>.recovered.mcap``); must differ from ``path``.
 
     Raises:
-        LogError: the source is missing, not MCAP, or holds no deck_sim metadata; or ``out`` is ``path``.
+        LogError: the source is missing, not MCAP, or holds no deck_sim metadata, or what it holds does not make
+            an episode log; or ``out`` is ``path``.
     """
     src = Path(path)
     dst = Path(out) if out is not None else src.with_name(src.stem + ".recovered.mcap")
@@ -533,7 +613,8 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
             cid: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), dict(c.metadata))
             for cid, c in sorted(raw.channels.items())
         }
-        for m in raw.messages:
+        copied = [m for m in raw.messages if m.channel_id in channel_ids]  # (a message needs its channel)
+        for m in copied:
             writer.add_message(channel_ids[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
         writer.finish()
     log = EpisodeLog(dst)
@@ -541,8 +622,9 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
     return Recovery(
         path=dst,
         was_truncated=not raw.complete,
-        messages=len(raw.messages),
+        messages=len(copied),
         episodes_complete=complete,
         episodes_incomplete=len(log.episodes) - complete,
         stopped_at=raw.stopped_at,
+        summary_damage=raw.summary_damage,
     )
