@@ -1,6 +1,6 @@
-"""Checkpoints and exact resume: a stopped and resumed run equals an unbroken one, an old checkpoint resumes
-with the new fields' defaults, bad checkpoints give clear errors, and ``--resume`` may change only
-``RESUMABLE_CHANGES``."""
+"""Checkpoints and exact resume: a stopped and resumed run equals an unbroken one (also when resumed from the
+previous checkpoint after a damaged one), an old checkpoint resumes with the new fields' defaults, bad checkpoints
+give clear errors, and ``--resume`` may change only ``RESUMABLE_CHANGES``."""
 
 from __future__ import annotations
 
@@ -74,3 +74,24 @@ def test_cli_resume_may_add_polishing_but_no_other_change(tmp_path, capsys):
     assert "may change only total_steps, polish_epochs, polish_lr, polish_hidden, dagger_steps, not gamma" in err
     assert main([*base, "--set", "polish_epochs=2"]) == 0
     assert load_checkpoint(out / "checkpoint.pt")["polished"] is True
+
+
+@pytest.mark.slow
+def test_a_run_resumed_from_its_previous_checkpoint_equals_an_unbroken_one(tmp_path):
+    """A damaged ``checkpoint.pt`` is refused, the message naming ``checkpoint.prev.pt``'s step; moved into its
+    place, the previous checkpoint resumes the run exactly (its logs cut back to that step)."""
+    whole = Trainer(_short(), tmp_path / "whole", progress=False)
+    whole.train()
+    run = tmp_path / "broken"
+    Trainer(_short(), run, progress=False).train(stop_at=50)
+    Trainer(_short(), run, resume=True, progress=False).train(stop_at=70)
+    assert load_checkpoint(run / "checkpoint.prev.pt")["step"] == 50
+    data = bytearray((run / "checkpoint.pt").read_bytes())
+    data[len(data) // 2] ^= 1
+    (run / "checkpoint.pt").write_bytes(data)
+    with pytest.raises(CheckpointError, match=r"checksum .* previous checkpoint \(step 50\) is intact.*mv "):
+        Trainer(_short(), run, resume=True, progress=False)
+    (run / "checkpoint.prev.pt").replace(run / "checkpoint.pt")
+    resumed = Trainer(_short(), run, resume=True, progress=False)
+    resumed.train()
+    assert_same_run(whole, resumed)

@@ -8,8 +8,9 @@ reach (17 actions). A2C acts on the continuous (x, y) action like DDPG.
 Every setting of a run is a field of its config (``DQNConfig`` or ``A2CConfig``, ``training.baseline_config``). A
 run folder holds that config as ``config.json``, ``progress.csv`` and ``eval.csv`` with the columns of the DDPG
 runs (where SB3 has them), TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own
-formats, which pickle: load only runs you trust). ``--resume`` loads them and goes on for the remaining steps;
-unlike the DDPG trainer it is not bit-exact (SB3 does not restore the environments' episodes).
+formats, which pickle: load only runs you trust). ``--resume`` loads them and goes on for the remaining steps with
+the saved config (``resume_config``: only the budget and the evaluation and logging settings may change); unlike
+the DDPG trainer it is not bit-exact (SB3 does not restore the environments' episodes).
 
 As the DDPG trainer does, a run also writes its policy as a weights-only ``.npz`` that ``deck_sim.policies``
 evaluates with numpy alone (``export_sb3``: format ``deck_sim.actor/2``): ``actor_best.npz`` at the best periodic
@@ -48,6 +49,9 @@ log = logging.getLogger(__name__)
 HEADINGS = 8
 SPEEDS = (0.5, 1.0)
 BASELINES = agents.names(trainer="sb3")
+RESUMABLE_BASELINE_CHANGES = ("total_steps", "eval_every", "eval_episodes", "log_every")
+"""Config fields a resumed DQN or A2C run may change: a longer run, and how often and on how many episodes it is
+evaluated and logged."""
 
 
 def discrete_actions() -> np.ndarray:
@@ -182,6 +186,49 @@ def save_sb3_actor(path: str | os.PathLike[str], model: Any, vecnormalize: Any, 
     os.replace(tmp, path)
 
 
+def saved_baseline_config(run_dir: str | os.PathLike[str]) -> BaselineConfig:
+    """The config of the DQN or A2C run in ``run_dir`` as its ``config.json`` records it; a ``config.json`` that names
+    the run's length ``steps`` and holds the SB3 keywords under ``sb3`` (and the predictor, always ``none``) is read
+    as well. ``CheckpointError`` naming the file if it is missing or holds no such config."""
+    from training.checkpoints import CheckpointError
+
+    path = Path(run_dir) / "config.json"
+    try:
+        saved = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CheckpointError(f"{run_dir}: no DQN or A2C run to resume (no config.json)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise CheckpointError(f"{path}: not a readable run config ({err})") from err
+    if not isinstance(saved, dict) or not isinstance(saved.get("sb3", {}), dict):
+        raise CheckpointError(f"{path}: not a DQN or A2C run config (expected a JSON object of its fields)")
+    fields = {k: v for k, v in saved.items() if k not in ("algo", "steps", "sb3", "predictor")}
+    fields.update(saved.get("sb3", {}))
+    if "total_steps" not in fields and "steps" in saved:
+        fields["total_steps"] = saved["steps"]
+    try:
+        return baseline_config(saved.get("algo"), **fields)
+    except ConfigError as err:
+        raise CheckpointError(f"{path}: not a DQN or A2C run config: {err}") from err
+
+
+def resume_config(algo: str, run_dir: str | os.PathLike[str], **fields: Any) -> BaselineConfig:
+    """The config a resumed run in ``run_dir`` trains with: its saved one (``saved_baseline_config``) with ``fields``
+    applied. A field outside ``RESUMABLE_BASELINE_CHANGES`` may only repeat the saved value, and ``algo`` must be the
+    run's: ``ConfigError`` naming each one given otherwise and the run's value."""
+    saved = saved_baseline_config(run_dir)
+    if algo != saved.algo:
+        raise ConfigError(f"algo: the run in {run_dir} is a {saved.algo} run, not {algo}")
+    mine = saved.to_dict()
+    wanted = baseline_config(saved.algo, **{k: v for k, v in {**mine, **fields}.items() if k != "algo"}).to_dict()
+    fixed = [k for k in sorted(fields) if k not in RESUMABLE_BASELINE_CHANGES and wanted[k] != mine[k]]
+    if fixed:
+        detail = "; ".join(f"{k}: the run's {mine[k]!r}, given {wanted[k]!r}" for k in fixed)
+        raise ConfigError(
+            f"{run_dir}: a resumed run keeps its config but for {', '.join(RESUMABLE_BASELINE_CHANGES)} ({detail})"
+        )
+    return type(saved).from_dict(wanted)
+
+
 def train_baseline(
     algo: str,
     scene: str,
@@ -192,22 +239,25 @@ def train_baseline(
     progress: bool = True,
     **overrides: Any,
 ) -> dict[str, Any]:
-    """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps (None: the config's default) in ``out``.
+    """Train SB3's DQN or A2C on ``scene`` for ``steps`` environment steps in ``out`` (None: the config's default,
+    or a resumed run's own).
 
     ``overrides`` are fields of the algorithm's config (``DQNConfig`` or ``A2CConfig``: SB3 hyperparameters such
     as ``learning_rate``, the evaluation and logging settings, ``scene_overrides``); the config is checked before
     anything is built (``ConfigError`` naming an unknown field or a bad value) and saved as ``config.json`` with a
-    new run. A resumed run continues the saved model to ``steps`` with the evaluation and logging settings given
-    now; its SB3 hyperparameters are the saved model's. Returns the last held-out evaluation and the run's
-    counters, in the shape ``Trainer.train`` returns. Writes ``actor_best.npz`` (best periodic evaluation) and
-    ``actor.npz`` (final) for ``deck_sim.policies.LearnedPolicy``.
+    new run. A resumed run keeps its saved config (``resume_config``: ``algo``, ``scene``, ``seed`` and any other
+    field given must repeat the saved value, but for ``RESUMABLE_BASELINE_CHANGES``) and continues the saved model
+    to ``steps``, which may not be below the steps it has done (``CheckpointError`` naming both, before anything is
+    written). Returns the last held-out evaluation and the run's counters, in the shape ``Trainer.train`` returns.
+    Writes ``actor_best.npz`` (best periodic evaluation) and ``actor.npz`` (final) for
+    ``deck_sim.policies.LearnedPolicy``.
     """
     if "total_steps" in overrides:
         raise ConfigError("total_steps: given by the steps argument (deck-sim train --steps)")
     fields = {"scene": scene, "seed": seed, **overrides}
     if steps is not None:
         fields["total_steps"] = int(steps)
-    cfg = baseline_config(algo, **fields)
+    cfg = resume_config(algo, out, **fields) if resume else baseline_config(algo, **fields)
 
     from stable_baselines3 import A2C, DQN
     from stable_baselines3.common.callbacks import BaseCallback
@@ -227,12 +277,21 @@ def train_baseline(
     if resume:
         if not model_path.exists() or not norm_path.exists():
             raise CheckpointError(f"{out}: no model.zip and vecnormalize.pkl to resume from")
+        # SB3 raises many types for a damaged zip or pickle; the message keeps their first line
         try:
             venv = VecNormalize.load(str(norm_path), venv)
+        except Exception as err:
+            raise CheckpointError(f"{norm_path}: not a readable VecNormalize file ({_first_line(err)})") from err
+        try:
             model = cls.load(str(model_path), env=venv)
-        except Exception as err:  # SB3 raises many types for a damaged zip or pickle
-            raise CheckpointError(f"{out}: cannot load the saved model ({err})") from err
+        except Exception as err:
+            raise CheckpointError(f"{model_path}: not a readable {algo} model ({_first_line(err)})") from err
         done_steps = int(model.num_timesteps)
+        if steps < done_steps:
+            raise CheckpointError(
+                f"{out}: the run has done {done_steps} steps; a budget of {steps} steps (total_steps, --steps) is "
+                "below that"
+            )
         earlier = _read_rows(out / "eval.csv")
         wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock spans every process
         best_success = max((float(r["success"]) for r in earlier), default=-1.0)
@@ -367,6 +426,12 @@ def train_baseline(
     }
 
 
+def _first_line(err: BaseException) -> str:
+    """An exception's message in one line (its first), or its type's name if it has none."""
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
 def _read_rows(path: Path) -> list[dict[str, str]]:
     if not path.exists():
         return []
@@ -392,6 +457,7 @@ def load_baseline(run_dir: str | Path) -> SB3Policy:
 
 __all__ = [
     "BASELINES",
+    "RESUMABLE_BASELINE_CHANGES",
     "A2CConfig",
     "BaselineConfig",
     "DQNConfig",
@@ -400,6 +466,8 @@ __all__ = [
     "baseline_config",
     "export_sb3",
     "load_baseline",
+    "resume_config",
     "save_sb3_actor",
+    "saved_baseline_config",
     "train_baseline",
 ]

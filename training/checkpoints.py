@@ -1,18 +1,34 @@
 """A training run's ``checkpoint.pt``: what it holds, how it is written, read and checked, and how a trainer is put
 back exactly where it stood.
 
-A checkpoint is taken between steps and written atomically (a crash while writing leaves the previous one). It
-holds the networks, optimisers, replay buffer, noise, the random generators' states, the run's counters and, per
-environment, its episode's index (hence its reset seed) and the actions taken in that episode. Resuming rebuilds
-each environment, resets it with its episode's seed and replays those actions (the physics is deterministic for a
-seed), checks that it arrives at the checkpointed observation, and goes on; the CSV logs are cut back to the
-checkpoint's step.
+A checkpoint is taken between steps. It holds the networks, optimisers, replay buffer, noise, the random
+generators' states, the run's counters and, per environment, its episode's index (hence its reset seed) and the
+actions taken in that episode. Resuming rebuilds each environment, resets it with its episode's seed and replays
+those actions (the physics is deterministic for a seed), checks that it arrives at the checkpointed observation,
+and goes on; the CSV logs are cut back to the checkpoint's step.
+
+The file is ``torch.save``'s zip archive with the SHA-256 of that archive in the zip's comment (``CHECKSUM_TAG``
+and 64 hex digits): ``torch.load`` reads it as it is, and ``load_checkpoint`` refuses a file whose digest does not
+match, or that ends in neither such a comment nor a plain zip record, with a ``CheckpointError`` naming it, before
+torch reads a byte. A plain ``torch.save`` archive without the comment is read unverified, with a one-line warning,
+so that run folders holding such checkpoints still resume; the run's next checkpoint carries the digest.
+
+Each write goes to a temporary file, synced, then moves the current ``checkpoint.pt`` to ``checkpoint.prev.pt`` and
+itself into place: a crash while writing leaves the last complete checkpoint, as ``checkpoint.pt`` or, between the
+two moves, as ``checkpoint.prev.pt`` alone (which ``--resume`` then names).
+
+A damaged ``checkpoint.pt`` is not replaced by the previous one on its own: ``--resume`` refuses it, and the message
+gives the previous one's step and the ``mv`` command that makes it the checkpoint to resume from. Resuming from it
+is exact as well (the run goes on as an unbroken run from that step, its logs cut back to it), but what the run did
+after that step is dropped, so the choice is the user's.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,6 +44,18 @@ log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "deck_sim.checkpoint/1"
 
+CHECKPOINT = "checkpoint.pt"
+"""A run folder's latest checkpoint."""
+PREVIOUS = "checkpoint.prev.pt"
+"""The checkpoint written before ``CHECKPOINT``, kept by each write."""
+CHECKSUM_TAG = b"deck_sim.checkpoint sha256 "
+"""The start of a checkpoint's zip comment; the SHA-256 of the archive without it follows, in hex."""
+
+_EOCD = b"PK\x05\x06"  # signature of the zip's end-of-central-directory record (22 bytes and the comment, last)
+_EOCD_SIZE = 22
+_COMMENT_SIZE = len(CHECKSUM_TAG) + 64
+_warned: set[tuple[str, int, int]] = set()  # the checkpoints without a checksum this process has warned of
+
 RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden", "dagger_steps")
 """Config fields a resumed run may change: a longer run, or a final cloning fit or a DAgger round added to a
 finished one."""
@@ -37,33 +65,146 @@ class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read, or that belongs to another configuration."""
 
 
-def _atomic_torch_save(obj: Any, path: Path) -> None:
+def _sha256(f: Any, size: int) -> Any:
+    """The SHA-256 of the first ``size`` bytes of the open file ``f``."""
+    digest = hashlib.sha256()
+    f.seek(0)
+    while size > 0:
+        chunk = f.read(min(size, 1 << 22))
+        if not chunk:
+            break
+        digest.update(chunk)
+        size -= len(chunk)
+    return digest
+
+
+def _write(state: dict[str, Any], path: Path) -> None:
+    """``torch.save`` ``state`` with its digest in the zip comment, atomically; the file it replaces becomes
+    ``PREVIOUS``."""
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
+    torch.save(state, tmp)
+    with open(tmp, "r+b") as f:
+        size = f.seek(0, os.SEEK_END)
+        f.seek(size - _EOCD_SIZE)
+        if f.read(_EOCD_SIZE)[:4] != _EOCD:  # torch writes no zip comment: its archive ends with the bare record
+            raise RuntimeError(f"{tmp}: torch.save wrote no plain zip end record; cannot add the checksum")
+        comment = CHECKSUM_TAG + _sha256(f, size).hexdigest().encode()
+        f.seek(size - 2)  # the record's comment length, 0 as torch wrote it
+        f.write(len(comment).to_bytes(2, "little") + comment)
+        f.flush()
+        os.fsync(f.fileno())
+    if path.exists():
+        os.replace(path, path.with_name(PREVIOUS))
     os.replace(tmp, path)
 
 
+def _verify(path: Path) -> bool:
+    """Check ``path``'s digest: True if it matches, False for a checkpoint without one (a plain zip end record);
+    ``CheckpointError`` for a mismatch or a file that ends in neither."""
+    with open(path, "rb") as f:
+        size = f.seek(0, os.SEEK_END)
+        tail_size = min(size, _EOCD_SIZE + _COMMENT_SIZE)
+        f.seek(size - tail_size)
+        tail = f.read(tail_size)
+        if len(tail) >= _EOCD_SIZE and tail[-_EOCD_SIZE:][:4] == _EOCD and tail[-2:] == b"\0\0":
+            return False
+        comment, record = tail[-_COMMENT_SIZE:], tail[:_EOCD_SIZE]
+        signed = (
+            len(tail) == _EOCD_SIZE + _COMMENT_SIZE
+            and record[:4] == _EOCD
+            and int.from_bytes(record[-2:], "little") == _COMMENT_SIZE
+            and comment.startswith(CHECKSUM_TAG)
+        )
+        if not signed:
+            what = "no checkpoint record at its end: another kind of file, or a damaged or cut-short one"
+            what = "an empty file" if size == 0 else what
+            raise CheckpointError(f"{path}: not a readable checkpoint: not a deck_sim training checkpoint ({what})")
+        digest = _sha256(f, size - _COMMENT_SIZE - 2)
+        digest.update(b"\0\0")  # the comment length as torch wrote it
+    if digest.hexdigest().encode() != comment[len(CHECKSUM_TAG) :]:
+        raise CheckpointError(
+            f"{path}: not a readable checkpoint: its content does not match its SHA-256 checksum (the file is damaged)"
+        )
+    return True
+
+
 def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a checkpoint written by ``Trainer``; ``CheckpointError`` naming the file if it cannot be read."""
+    """Read a checkpoint written by ``Trainer``, its checksum checked first; ``CheckpointError`` naming the file,
+    in one line, if it is missing, damaged or not a checkpoint. A checkpoint without a checksum is read with a
+    warning."""
     path = Path(path)
     if not path.exists():
         raise CheckpointError(f"{path}: no checkpoint to resume from")
     try:
+        verified = _verify(path)
+    except OSError as err:
+        raise CheckpointError(f"{path}: not a readable checkpoint: {err.strerror or err}") from err
+    try:
         state = torch.load(path, weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file (pickle, zip, runtime errors)
-        raise CheckpointError(f"{path}: not a readable checkpoint (corrupt or truncated?): {err}") from err
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(
+            f"{path}: not a readable checkpoint: torch cannot load it ({first})"
+            + ("" if verified else "; it carries no checksum: not a deck_sim training checkpoint, or a damaged one")
+        ) from err
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path}: not a deck_sim training checkpoint (format {CHECKPOINT_FORMAT!r})")
+    if not verified:
+        stat = path.stat()
+        key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+        if key not in _warned:  # once per file: ``--resume`` reads the checkpoint for its plan and for the trainer
+            _warned.add(key)
+            log.warning("%s: a checkpoint without a checksum, read unverified (the run's next one has it)", path)
     return state
+
+
+def load_run_checkpoint(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read ``run_dir``'s ``checkpoint.pt`` (``load_checkpoint``). If it is missing or damaged and
+    ``checkpoint.prev.pt`` reads, the ``CheckpointError`` gives that one's step and the command that makes it the
+    checkpoint to resume from; the previous one is never taken in its place silently."""
+    run_dir = Path(run_dir)
+    path, previous = run_dir / CHECKPOINT, run_dir / PREVIOUS
+    try:
+        return load_checkpoint(path)
+    except CheckpointError as err:
+        if not previous.exists():
+            raise
+        try:
+            step = int(load_checkpoint(previous)["step"])
+        except (CheckpointError, KeyError, TypeError, ValueError):
+            raise CheckpointError(f"{err}; the previous checkpoint {previous} cannot be read either") from err
+        raise CheckpointError(
+            f"{err}; the previous checkpoint (step {step}) is intact: to resume from it, "
+            f"mv {shlex.quote(str(previous))} {shlex.quote(str(path))}"
+        ) from err
+
+
+def checkpoint_config(state: dict[str, Any], path: str | os.PathLike[str]) -> TrainConfig:
+    """The ``TrainConfig`` a checkpoint ``state`` read from ``path`` was written with."""
+    try:
+        return TrainConfig.from_dict(state["config"])
+    except ConfigError as err:
+        raise CheckpointError(f"{path}: its config is not valid here: {err}") from err
+
+
+def steps_done(state: dict[str, Any]) -> int:
+    """The online environment steps a checkpoint's run has done (a DAgger round's steps left out)."""
+    return int(state["step"]) - int(state.get("dagger_done", 0))
+
+
+def check_budget(total_steps: int, state: dict[str, Any], path: str | os.PathLike[str]) -> None:
+    """``CheckpointError`` naming both if ``total_steps`` is below the steps the checkpoint's run has done."""
+    done = steps_done(state)
+    if total_steps < done:
+        raise CheckpointError(
+            f"{path}: the run has done {done} steps; a budget of {total_steps} steps (total_steps, --steps) is "
+            "below that"
+        )
 
 
 def config_from_checkpoint(run_dir: str | os.PathLike[str]) -> TrainConfig:
     """The configuration stored in ``run_dir/checkpoint.pt`` (for ``--resume`` without repeating the options)."""
-    state = load_checkpoint(Path(run_dir) / "checkpoint.pt")
-    try:
-        return TrainConfig.from_dict(state["config"])
-    except ConfigError as err:
-        raise CheckpointError(f"{run_dir}/checkpoint.pt: its config is not valid here: {err}") from err
+    return checkpoint_config(load_run_checkpoint(run_dir), Path(run_dir) / CHECKPOINT)
 
 
 def comparable(saved: dict[str, Any]) -> dict[str, Any]:
@@ -109,7 +250,8 @@ def check_polished(trainer: Trainer, saved: dict[str, Any], end: int) -> None:
 
 
 def save_checkpoint(trainer: Trainer) -> Path:
-    """Write ``trainer``'s ``checkpoint.pt`` atomically; its path."""
+    """Write ``trainer``'s ``checkpoint.pt`` atomically with its checksum, the one it replaces kept as
+    ``checkpoint.prev.pt``; its path."""
     stats = trainer.stats
     state = {
         "format": CHECKPOINT_FORMAT,
@@ -141,8 +283,8 @@ def save_checkpoint(trainer: Trainer) -> Path:
             for s in trainer.slots
         ],
     }
-    path = trainer.run_dir / "checkpoint.pt"
-    _atomic_torch_save(state, path)
+    path = trainer.run_dir / CHECKPOINT
+    _write(state, path)
     return path
 
 
@@ -150,7 +292,7 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
     """Put ``trainer`` (freshly built from the checkpoint's config) back where ``state`` stood: networks, replay,
     noise, counters and random generators, every environment replayed to its checkpointed observation, and the
     CSV logs cut back to the checkpoint's step."""
-    path = trainer.run_dir / "checkpoint.pt"
+    path = trainer.run_dir / CHECKPOINT
     try:
         # a polished checkpoint holds the fit's actor, of the widths its own config gave the fit
         widths = tuple(comparable(state["config"]).get("polish_hidden") or ())

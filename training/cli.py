@@ -32,12 +32,13 @@ def _require_training(algo: str) -> None:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an agent into a run folder (or continue one with ``--resume``) and print its held-out figures."""
-    _require_training(args.algo)
+    out = _run_folder(args)
+    _require_training(args.algo or (_recorded_algo(out) if args.resume else None) or "mddpg")
     from training.config import ConfigError
     from training.loop import CheckpointError
 
     try:
-        out, config, baseline = _plan_run(args)
+        config, baseline = _plan_run(args, out)
         if args.print_config:
             if config is not None:
                 shown = config.to_dict()
@@ -47,7 +48,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 fields = {k: v for k, v in baseline.items() if k not in ("algo", "steps")}
                 if baseline["steps"] is not None:
                     fields["total_steps"] = baseline["steps"]
-                shown = baseline_config(args.algo, **fields).to_dict()
+                shown = baseline_config(baseline["algo"], **fields).to_dict()
             print(json.dumps(shown, indent=2, sort_keys=True))
             return 0
         if config is not None:
@@ -62,16 +63,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"deck-sim train: error: {err}", file=sys.stderr)
         return 2
     ev = summary.get("eval") or {}
-    scene = config.scene if config is not None else baseline["scene"]
+    algo, scene = (config.algo, config.scene) if config is not None else (baseline["algo"], baseline["scene"])
     if ev:
         print(
-            f"{args.algo} on {scene}: {summary['step']} steps in {summary['wall_s']:.0f} s; held-out "
+            f"{algo} on {scene}: {summary['step']} steps in {summary['wall_s']:.0f} s; held-out "
             f"success {100 * ev['goal_rate']:.1f} %, collision {100 * ev['collision_rate']:.1f} %, "
             f"timeout {100 * ev['timeout_rate']:.1f} %, mean reward {ev['mean_reward']:.1f}"
         )
     if summary.get("stopped"):
-        print(f"stopped at step {summary['step']}; continue with: deck-sim train --algo {args.algo} "
-              f"--out {out} --resume")
+        print(f"stopped at step {summary['step']}; continue with: deck-sim train --out {out} --resume")
     actor = "exported actor actor.npz" if (out / "actor.npz").exists() else "no actor yet (the run is not finished)"
     print(f"wrote {out} (config.json, progress.csv, eval.csv, tb/, checkpoint; {actor})")
     return 0
@@ -96,10 +96,33 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | None]:
-    """The run folder and what to train there: a ``TrainConfig`` (MDDPG, DDPG) or the keyword arguments of
-    ``train_baseline`` (DQN, A2C), from ``--recipe`` or ``--scene``/``--preset``, then ``--steps`` and ``--set``."""
-    from training.config import ConfigError, TrainConfig, make_config
+def _run_folder(args: argparse.Namespace) -> Path:
+    """``--out``, or ``runs/train-<algo>-<recipe or scene>-seed<seed>`` of the options given (mddpg, deck1 and seed 0
+    where they are not)."""
+    if args.out:
+        return Path(args.out)
+    label = Path(args.recipe).stem if args.recipe is not None else Path(args.scene or "deck1").stem
+    seed = 0 if args.seed is None else args.seed
+    return Path("runs") / f"train-{args.algo or 'mddpg'}-{label}-seed{seed}"
+
+
+def _recorded_algo(out: Path) -> str | None:
+    """The agent of the stable-baselines3 run in ``out`` as its ``config.json`` records it; None for any other folder
+    (a DDPG run's agent, mddpg or ddpg, which need the same packages, is read from its checkpoint)."""
+    if not (out / "model.zip").exists():
+        return None
+    try:
+        algo = json.loads((out / "config.json").read_text()).get("algo")
+    except (OSError, ValueError, AttributeError):
+        return None  # the resume names what is wrong with the file
+    return algo if algo in agents.LEARNED else None
+
+
+def _plan_run(args: argparse.Namespace, out: Path) -> tuple[Any, dict[str, Any] | None]:
+    """What to train in the run folder ``out``: a ``TrainConfig`` (MDDPG, DDPG) or the keyword arguments of
+    ``train_baseline`` (DQN, A2C), from ``--recipe`` or ``--scene``/``--preset``, then ``--steps`` and ``--set``;
+    with ``--resume``, the run's saved config (``_plan_resume``)."""
+    from training.config import ConfigError, make_config
 
     recipe = None
     if args.recipe is not None:
@@ -109,37 +132,109 @@ def _plan_run(args: argparse.Namespace) -> tuple[Path, Any, dict[str, Any] | Non
         if clash:
             raise ConfigError(f"--recipe {args.recipe} sets the scene and the preset; drop {' and '.join(clash)}")
         recipe = load_recipe(args.recipe)
-    scene = recipe.scene if recipe is not None else args.scene or "deck1"
-    label = recipe.name if recipe is not None else Path(scene).stem
-    out = Path(args.out) if args.out else Path("runs") / f"train-{args.algo}-{label}-seed{args.seed}"
     changes = parse_assignments(args.set)
     flags = sorted({"algo", "scene", "seed", "steps", "total_steps"} & set(changes))
     if flags:
         flag = "steps" if flags[0] == "total_steps" else flags[0]
         raise ConfigError(f"--set {flags[0]}=...: use --{flag}")
-    if agents.AGENTS[args.algo].trainer == "sb3":
-        baseline = recipe.baseline_kwargs(args.algo) if recipe is not None else {"steps": None}
+    if args.resume:
+        return _plan_resume(args, out, recipe, changes)
+    algo = args.algo or "mddpg"
+    seed = 0 if args.seed is None else args.seed
+    scene = recipe.scene if recipe is not None else args.scene or "deck1"
+    if agents.AGENTS[algo].trainer == "sb3":
+        baseline = recipe.baseline_kwargs(algo) if recipe is not None else {"steps": None}
         if args.steps is not None:
             baseline["steps"] = args.steps
-        return out, None, {"algo": args.algo, "scene": scene, "seed": args.seed, **baseline, **changes}
-    if args.resume:
-        from training.loop import RESUMABLE_CHANGES, config_from_checkpoint
-
-        config = config_from_checkpoint(out)
-        if args.steps is not None:
-            config.total_steps = int(args.steps)
-        fixed = sorted(set(changes) - set(RESUMABLE_CHANGES))
-        if fixed:
-            raise ConfigError(
-                f"--resume keeps the run's config; --set may change only {', '.join(RESUMABLE_CHANGES)}, "
-                f"not {', '.join(fixed)}"
-            )
-        return out, TrainConfig.from_dict({**config.to_dict(), **changes}), None
+        return None, {"algo": algo, "scene": scene, "seed": seed, **baseline, **changes}
     if args.steps is not None:
         changes["total_steps"] = args.steps
     if recipe is not None:
-        return out, recipe.config(args.algo, args.seed, **changes), None
-    return out, make_config(args.preset or "tuned", algo=args.algo, scene=scene, seed=args.seed, **changes), None
+        return recipe.config(algo, seed, **changes), None
+    return make_config(args.preset or "tuned", algo=algo, scene=scene, seed=seed, **changes), None
+
+
+def _plan_resume(
+    args: argparse.Namespace, out: Path, recipe: Any, changes: dict[str, Any]
+) -> tuple[Any, dict[str, Any] | None]:
+    """The run in ``out`` as it was saved, with ``--steps`` and the ``--set`` fields a resumed run may change.
+    ``--algo``, ``--scene``, ``--seed``, ``--preset`` and ``--recipe`` may be given only with the run's own values
+    (``ConfigError`` naming each one that contradicts it), and ``--steps`` not below the steps the run has done,
+    before anything is written."""
+    from training.config import ConfigError, TrainConfig
+
+    if (out / "model.zip").exists():  # a stable-baselines3 run
+        from training.baselines import resume_config, saved_baseline_config
+
+        saved = saved_baseline_config(out)
+        _check_resume_options(args, recipe, out, {"algo": saved.algo, "scene": saved.scene, "seed": saved.seed,
+                                                  "preset": None})
+        fields = {**changes, **({} if args.steps is None else {"total_steps": args.steps})}
+        cfg = resume_config(saved.algo, out, **fields).to_dict()
+        keep = {k: v for k, v in cfg.items() if k not in ("algo", "total_steps")}
+        return None, {"algo": cfg["algo"], "steps": cfg["total_steps"], **keep}
+    from training.checkpoints import (
+        CHECKPOINT,
+        RESUMABLE_CHANGES,
+        check_budget,
+        checkpoint_config,
+        comparable,
+        load_run_checkpoint,
+    )
+
+    state = load_run_checkpoint(out)
+    saved = comparable(state["config"])
+    extra = saved.get("extra") if isinstance(saved.get("extra"), dict) else {}
+    _check_resume_options(args, recipe, out, {"algo": saved.get("algo"), "scene": saved.get("scene"),
+                                              "seed": saved.get("seed"), "preset": extra.get("preset"),
+                                              "recipe": extra.get("recipe")})
+    config = checkpoint_config(state, out / CHECKPOINT)
+    fixed = sorted(set(changes) - set(RESUMABLE_CHANGES))
+    if fixed:
+        raise ConfigError(
+            f"--resume keeps the run's config; --set may change only {', '.join(RESUMABLE_CHANGES)}, "
+            f"not {', '.join(fixed)}"
+        )
+    if args.steps is not None:
+        check_budget(args.steps, state, out / CHECKPOINT)
+        config.total_steps = int(args.steps)
+    return TrainConfig.from_dict({**config.to_dict(), **changes}), None
+
+
+def _check_resume_options(args: argparse.Namespace, recipe: Any, out: Path, saved: dict[str, Any]) -> None:
+    """``ConfigError`` naming each of ``--algo``, ``--scene``, ``--seed``, ``--preset`` and ``--recipe`` given with a
+    value other than the run's (``saved``: its algo, scene, seed, preset and, where the run records it, recipe; a
+    DQN or A2C run records no recipe, so ``--recipe`` must give its scene)."""
+    from training.config import ConfigError
+
+    given = [("--algo", "algo", args.algo), ("--scene", "scene", args.scene), ("--seed", "seed", args.seed),
+             ("--preset", "preset", args.preset)]
+    if recipe is not None:
+        given.append(("--recipe", "recipe", recipe.name) if "recipe" in saved else ("--recipe", "scene", recipe.scene))
+    wrong = [
+        f"{flag} {args.recipe if flag == '--recipe' else value} (the run's {key}: {_shown(saved[key])})"
+        for flag, key, value in given
+        if value is not None and not _same(key, value, saved[key])
+    ]
+    if wrong:
+        raise ConfigError(
+            f"--resume continues the run in {out} as it was saved, and {', '.join(wrong)} "
+            f"{'contradicts' if len(wrong) == 1 else 'contradict'} it: drop {'it' if len(wrong) == 1 else 'them'}"
+        )
+
+
+def _shown(value: Any) -> str:
+    return "none" if value is None else str(value)
+
+
+def _same(key: str, given: Any, saved: Any) -> bool:
+    """Whether an option's value is the run's: scenes by name, or by file when both are paths to one file."""
+    if given == saved:
+        return True
+    if key != "scene" or saved is None:
+        return False
+    a, b = Path(str(given)), Path(str(saved))
+    return a.is_file() and b.is_file() and a.resolve() == b.resolve()
 
 
 def config_fields_help(width: int = 118) -> str:
@@ -167,19 +262,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the actor (actor.npz, actor_best.npz). Ctrl-C stops at a checkpoint; --resume continues exactly.",
     )
     p.epilog = config_fields_help()
-    p.add_argument("--algo", default="mddpg", choices=agents.LEARNED, help="the agent to train")
+    p.add_argument("--algo", default=None, choices=agents.LEARNED,
+                   help="the agent to train (default: mddpg; with --resume, the run's)")
     p.add_argument("--recipe", default=None,
                    help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained) or a recipe "
                         "TOML file; it sets the scene, the preset and every field the recipe names")
     p.add_argument("--scene", default=None, help="scene name or TOML path (default: deck1, or the recipe's)")
     p.add_argument("--steps", type=int, default=None, help="environment steps (default: the recipe's or preset's)")
-    p.add_argument("--seed", type=int, default=0, help="seeds the networks, noise and training episodes")
+    p.add_argument("--seed", type=int, default=None,
+                   help="seeds the networks, noise and training episodes (default: 0; with --resume, the run's)")
     p.add_argument("--preset", default=None,
                    help="tuned (the switches that pay) or paper (plain DDPG); default tuned, or the recipe's")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a TrainConfig field, e.g. --set twin_critics=false --set hidden=[128,128]")
     p.add_argument("--out", default=None, help="run folder (default: runs/train-<algo>-<scene>-seed<seed>)")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its checkpoint, with its saved config: --algo, --scene, "
+                        "--seed, --preset and --recipe, if given, must be the run's; --steps may not be below "
+                        "the steps done")
     p.add_argument("--quiet", action="store_true", help="no progress report")
     p.add_argument("--print-config", action="store_true",
                    help="print the run's full configuration as JSON and exit without training")

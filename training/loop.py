@@ -7,7 +7,9 @@ A run lives in one folder:
     eval.csv           held-out evaluations (success, collision, timeout, reward, path ratio, turning angle)
     tb/                the same curves for TensorBoard
     checkpoint.pt      everything needed to continue exactly (networks, optimisers, replay, noise, RNG states,
-                       each environment's episode seed and the actions taken in it); written atomically
+                       each environment's episode seed and the actions taken in it); written atomically, with
+                       its SHA-256 checksum (``training.checkpoints``)
+    checkpoint.prev.pt the checkpoint before it
     actor.npz          the final greedy actor, weights only (``deck_sim.policies.LearnedPolicy``)
     actor_best.npz     the actor of the best evaluation so far
 
@@ -39,13 +41,17 @@ from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import git_commit, run_episode
 from training.buffers import ReplayBuffer
 from training.checkpoints import (
+    CHECKPOINT,
     CHECKPOINT_FORMAT,
+    PREVIOUS,
     RESUMABLE_CHANGES,
     CheckpointError,
+    check_budget,
     check_compatible,
     check_polished,
     config_from_checkpoint,
     load_checkpoint,
+    load_run_checkpoint,
     restore,
     save_checkpoint,
 )
@@ -102,7 +108,7 @@ class Trainer:
         config: the run's hyperparameters.
         run_dir: folder for the logs, checkpoints and exported actors.
         resume: continue from ``run_dir/checkpoint.pt`` (its config must equal ``config`` but for
-            ``RESUMABLE_CHANGES``).
+            ``RESUMABLE_CHANGES``, and ``total_steps`` may not fall below the steps the run has done).
         progress: show a progress bar.
     """
 
@@ -115,12 +121,16 @@ class Trainer:
         self.commit = git_commit()  # the code this process runs, whatever the tree holds when an actor is written
         self._resume_state: dict[str, Any] | None = None
         if resume:
-            self._resume_state = load_checkpoint(self.run_dir / "checkpoint.pt")
-            check_compatible(self.config, self._resume_state["config"], self.run_dir / "checkpoint.pt")
-        elif (self.run_dir / "checkpoint.pt").exists():
-            raise CheckpointError(
-                f"{self.run_dir} already holds a run (checkpoint.pt); resume it with --resume or choose another folder"
-            )
+            self._resume_state = load_run_checkpoint(self.run_dir)
+            check_compatible(self.config, self._resume_state["config"], self.run_dir / CHECKPOINT)
+            check_budget(self.config.total_steps, self._resume_state, self.run_dir / CHECKPOINT)
+        else:
+            for name in (CHECKPOINT, PREVIOUS):
+                if (self.run_dir / name).exists():
+                    raise CheckpointError(
+                        f"{self.run_dir} already holds a run ({name}); resume it with --resume or choose another "
+                        "folder"
+                    )
         self.run_dir.mkdir(parents=True, exist_ok=True)
         cfg = self.config
         torch.set_num_threads(cfg.torch_threads)
@@ -267,7 +277,8 @@ class Trainer:
         }
 
     def save_checkpoint(self) -> Path:
-        """Write ``checkpoint.pt`` atomically (a crash while writing leaves the previous one intact)."""
+        """Write ``checkpoint.pt`` atomically with its checksum (a crash while writing leaves the previous one
+        intact), the one it replaces kept as ``checkpoint.prev.pt``."""
         return save_checkpoint(self)
 
     def close(self) -> None:
