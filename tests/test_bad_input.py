@@ -28,7 +28,7 @@ from deck_sim.policies import PolicyFileError, load_actor, make_policy, policy_o
 from deck_sim.policies.actors import ACTOR_FORMAT
 from deck_sim.recording import EpisodeLog, LogError, recover
 from deck_sim.rollout import open_recorder, run_episode
-from deck_sim.tasks.navigate import InvalidActionError, _real_action
+from deck_sim.tasks.actions import InvalidActionError, _real_action
 from deck_sim.wrappers import DeckSimEnv
 
 LIMIT = 5.0  # s: the small log's episodes (10 decisions each)

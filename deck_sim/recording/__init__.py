@@ -9,14 +9,13 @@ task: ``deck_sim.rollout`` turns a running task into frames (``TaskFrames``) and
 from deck_sim.recording.reader import (
     EpisodeLog,
     EpisodeScore,
-    LogError,
     LogEvent,
     LoggedEpisode,
     Recovery,
     TopicInfo,
-    TruncatedLogError,
     recover,
 )
+from deck_sim.recording.records import LogError, TruncatedLogError
 from deck_sim.recording.schema import TOPICS
 from deck_sim.recording.writer import DEFAULT_CHUNK_SIZE, Attachment, EpisodeRecorder, RecordingError
 

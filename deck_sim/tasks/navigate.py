@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import math
-import reprlib
 from typing import Any
 
 import mujoco
@@ -38,6 +37,7 @@ from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_ar
 from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, end_circles, points_along, world_to_agent
 from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
+from deck_sim.tasks.actions import InvalidActionError, checked_action
 from deck_sim.tasks.layout import Layout, LayoutError, sample_layout, static_footprints, yaw_quat
 from deck_sim.tasks.movers import MoverDriver
 from deck_sim.tasks.observation import ObservationConfig, build_observation, observation_shapes
@@ -47,45 +47,6 @@ from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
 __all__ = ["InvalidActionError", "Layout", "LayoutError", "Navigate"]
 
 log = logging.getLogger(__name__)
-
-
-class InvalidActionError(ValueError):
-    """An action is not a finite pair of real numbers in [-1, 1]."""
-
-
-_REAL_KINDS = "fiu"  # numpy dtype kinds of real numbers: float, signed and unsigned integer
-
-
-def _real_action(action: Any) -> np.ndarray:
-    """``action`` as a float64 array if it holds real numbers only: an array of a float or integer dtype, or a
-    sequence of Python or numpy floats and ints. ``InvalidActionError`` naming what it holds otherwise: booleans,
-    complex numbers, strings, ``None``, mappings, integers too large for any numpy type, ragged nestings."""
-    if isinstance(action, np.ndarray):  # what policies give: one dtype check
-        if action.dtype.kind not in _REAL_KINDS:
-            raise InvalidActionError(
-                f"action must hold real numbers (a float or integer dtype), got an array of dtype {action.dtype}"
-            )
-        return np.asarray(action, dtype=np.float64)
-    try:
-        array = np.asarray(action)
-    except (ValueError, TypeError, OverflowError) as err:
-        raise InvalidActionError(f"action must be two real numbers, got {_shown(action)} ({err})") from None
-    real = array.dtype.kind in _REAL_KINDS
-    if real and isinstance(action, list | tuple) and array.shape == (2,):
-        # numpy turns [True, 0.5] into floats: each element must be a real number itself
-        real = all(type(x) is float or type(x) is int or np.asarray(x).dtype.kind in _REAL_KINDS for x in action)
-    if not real:
-        if array.dtype.kind == "O" and array.size and all(type(x) is int for x in array.flat):
-            raise InvalidActionError(
-                f"action must lie in [-1, 1]^2, got {_shown(action)} (integers beyond any numpy type)"
-            )
-        raise InvalidActionError(f"action must be two real numbers (float or int), got {_shown(action)}")
-    return np.asarray(action, dtype=np.float64)
-
-
-def _shown(value: Any) -> str:
-    """``value``'s type and a shortened repr, for messages."""
-    return f"{type(value).__name__} {reprlib.repr(value)}"
 
 
 class Navigate(composer.Task):
@@ -400,20 +361,12 @@ class Navigate(composer.Task):
     # -- one control step ----------------------------------------------------------------------------------
     def before_step(self, physics: mjcf.Physics, action: np.ndarray, random_state: np.random.RandomState) -> None:
         """Check the action, set every actuator, and run all physics substeps but composer's last one."""
-        action = _real_action(action)
-        if action.shape != (2,):
-            raise InvalidActionError(f"action must have shape (2,), got {action.shape}")
-        a0, a1 = action.tolist()  # (plain floats: numpy's calls on two numbers cost more than the checks)
-        if not (math.isfinite(a0) and math.isfinite(a1)):
-            raise InvalidActionError(f"action must be finite, got {action.tolist()}")
-        if abs(a0) > 1.0 + 1e-6 or abs(a1) > 1.0 + 1e-6:
-            raise InvalidActionError(f"action must lie in [-1, 1]^2, got {action.tolist()}")
+        a0, a1 = checked_action(action)
         spec, d, st = self.spec, self._d, self._state
         period = spec.episode.control_period
         if self._agent_frame:  # ahead and to the left -> the world's axes (``agent_to_world`` on two floats)
             c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
             a0, a1 = c * a0 - s * a1, s * a0 + c * a1
-            action = np.array([a0, a1])
         if isinstance(self._agent, Aircraft):
             reach = spec.agent.reach
             cmd = track_displacement(
@@ -426,7 +379,7 @@ class Navigate(composer.Task):
             )
             d.ctrl[self._ctrl_agent] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
         else:
-            displacement = action * spec.agent.reach
+            displacement = np.array([a0, a1]) * spec.agent.reach
             d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
         self._mover_driver.command(self._d.time, st)
         self._stepper.substeps()  # composer runs the final one
