@@ -13,11 +13,12 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = ["SceneSpecError", "TASKS", "__version__", "load", "load_scene", "scene_names"]
+__all__ = ["InvalidActionError", "SceneSpecError", "TASKS", "__version__", "load", "load_scene", "scene_names"]
 
 _LAZY = {
     "load": ("deck_sim.environment", "load"),
     "TASKS": ("deck_sim.tasks", "TASKS"),
+    "InvalidActionError": ("deck_sim.tasks.actions", "InvalidActionError"),
     "SceneSpecError": ("deck_sim.scenes", "SceneSpecError"),
     "load_scene": ("deck_sim.scenes", "load_scene"),
     "scene_names": ("deck_sim.scenes", "scene_names"),
