@@ -71,6 +71,7 @@ from deck_sim.policies import (  # noqa: E402
     load_actor,
     shipped_log_dir,
 )
+from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
@@ -376,11 +377,13 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "(never a training, demonstration or model-selection episode). Training time: wall-clock of the runs, summed,",
         "periodic evaluations included, while other work shared the machine; `machine` in `results.json` names",
         "the machine of the held-out measurement, which `--evaluate-only` repeats without training.",
+        "`learnt from` is the training regime (`deck_sim.policies.regimes`): `reward` (the reward alone), `planner`",
+        "(also a planner that sees what the agent sees) or `oracle-teacher` (also the full-knowledge planner).",
         "",
-        "| scene | agent | recipe | training seeds | actor | held-out episodes | success | collision | timeout |"
-        " left the deck | mean reward | path / straight | turning angle | training steps (each seed) |"
+        "| scene | agent | learnt from | recipe | training seeds | actor | held-out episodes | success | collision |"
+        " timeout | left the deck | mean reward | path / straight | turning angle | training steps (each seed) |"
         " training time (all seeds) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
         recipe = f"`training/recipes/{scene}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
@@ -391,7 +394,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
             actor = f"mean action of {len(meta['members'])} actors, each {actor}"
         seeds = ", ".join(map(str, r.get("seeds", [])))
         lines.append(
-            f"| {scene} | {LABELS.get(algo, algo)} | {recipe} | {seeds} | {actor} | {r['episodes']} | "
+            f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {recipe} | {seeds} | {actor} | "
+            f"{r['episodes']} | "
             f"{100 * r['success']:.1f} % | "
             f"{100 * r['collision']:.1f} % | {100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | "
             f"{r['mean_reward']:.1f} | {r['path_ratio']:.3f} | {r['turning_angle_deg']:.1f} deg | "
@@ -408,13 +412,12 @@ def seeds_cell(seeds: list[int]) -> str:
 
 
 def learnt_from(scene: str, algo: str) -> str:
-    """What the shipped ``algo`` of ``scene`` learnt from, read from its shipped training config: ``reward only``,
-    or the full-knowledge planner's demonstrations and labels (the teacher of ``training.envs``)."""
-    if AGENTS[algo].trainer == "sb3":  # stable-baselines3 learns from the environment's reward alone
-        return "reward only"
+    """The regime the shipped ``algo`` of ``scene`` learnt in (``deck_sim.policies.regimes``), read from its
+    shipped training config; stable-baselines3 learns from the environment's reward alone."""
+    if AGENTS[algo].trainer == "sb3":
+        return "reward"
     config = json.loads((shipped_log_dir(algo, scene) / "config.json").read_text(encoding="utf-8"))
-    taught = config.get("expert_relabel") or config.get("demo_episodes", 0) > 0 or config.get("polish_epochs", 0) > 0
-    return "full-knowledge planner's labels" if taught else "reward only"
+    return config_regime(config)
 
 
 def project_table(report: dict[str, dict[str, dict]]) -> list[str]:

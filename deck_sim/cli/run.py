@@ -85,6 +85,7 @@ def _play(args: argparse.Namespace) -> int:
     import deck_sim
     from deck_sim.metrics import summarize
     from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.policies.regimes import actor_regime, regime_text
     from deck_sim.rollout import run_episode
 
     if args.episodes < 1:
@@ -139,11 +140,16 @@ def _play(args: argparse.Namespace) -> int:
         return INTERRUPTED
     summary = summarize(results)
     table_text = format_summary(args.scene, args.policy, predictor, summary, wall)
+    meta_record = getattr(policy, "meta", None)
+    regime = actor_regime(meta_record) if isinstance(meta_record, dict) else None
+    if meta_record is not None:  # a learned policy: say what it learnt from
+        table_text = f"{args.policy} learnt from {regime_text(regime)}\n\n{table_text}"
     print(table_text)
     meta = {
         "scene": args.scene,
         "policy": args.policy,
         "predictor": predictor,
+        "regime": regime,
         "seed": args.seed,
         "episodes": args.episodes,
         "scene_set": scene_set,

@@ -1,0 +1,88 @@
+"""Training regimes: what every learned agent learnt from, named the same way in configs, actor files, ``deck-sim run``
+and the results tables."""
+
+import json
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from deck_sim.agents import LEARNED
+from deck_sim.cli import main
+from deck_sim.policies import TRAINED_DIR, load_actor
+from deck_sim.policies.regimes import (
+    REGIMES,
+    TEACHERS,
+    TEACHING_FIELDS,
+    actor_regime,
+    config_regime,
+    regime_text,
+)
+
+FIELD_VALUES = {
+    "demo_episodes": st.integers(0, 3),
+    "expert_relabel": st.booleans(),
+    "bc_weight": st.sampled_from([0.0, 0.5, 20.0]),
+    "pretrain_updates": st.integers(0, 3),
+    "polish_epochs": st.integers(0, 3),
+    "dagger_steps": st.integers(0, 3),
+}
+
+
+@given(st.fixed_dictionaries(FIELD_VALUES), st.sampled_from(sorted(TEACHERS)))
+def test_a_config_learns_from_the_reward_alone_exactly_when_no_teaching_field_is_on(fields, teacher):
+    regime = config_regime({**fields, "teacher": teacher, "num_envs": 8, "twin_critics": True})
+    if any(fields.values()):
+        assert regime == TEACHERS[teacher]
+    else:
+        assert regime == "reward"
+
+
+def test_the_default_and_the_paper_preset_learn_from_the_reward_and_the_tuned_preset_from_the_oracle():
+    pytest.importorskip("torch")
+    from training.config import TrainConfig, make_config
+
+    assert config_regime(TrainConfig().to_dict()) == "reward"
+    assert config_regime(make_config("paper").to_dict()) == "reward"
+    assert config_regime(make_config("tuned").to_dict()) == "oracle-teacher"
+    assert set(TEACHING_FIELDS) <= set(TrainConfig().to_dict())
+
+
+def test_an_unknown_teacher_is_named():
+    with pytest.raises(ValueError, match="teacher 'wizard' is not one of scripted, astar, mpc"):
+        config_regime({"teacher": "wizard", "bc_weight": 1.0})
+
+
+def test_actor_records_tell_their_regime():
+    assert actor_regime({"regime": "planner", "config": {"bc_weight": 0.0}}) == "planner"  # recorded wins
+    assert actor_regime({"algo": "dqn", "config": {"steps": 10}}) == "reward"
+    assert actor_regime({"algo": "mddpg", "config": {"polish_epochs": 20}}) == "oracle-teacher"
+    agree = {"members": [{"algo": "ddpg", "config": {}}, {"algo": "ddpg", "config": {}}]}
+    assert actor_regime(agree) == "reward"
+    differ = {"members": [{"algo": "ddpg", "config": {}}, {"algo": "ddpg", "config": {"bc_weight": 1.0}}]}
+    assert actor_regime(differ) is None
+    assert actor_regime({"format": "deck_sim.actor/1"}) is None
+    assert regime_text(None) == "an unrecorded regime"
+    assert all(name in regime_text(name) for name in REGIMES)
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNED))
+def test_every_shipped_actor_records_a_regime(algo):
+    for scene in ("deck1", "deck2", "square"):
+        path = TRAINED_DIR / f"{scene}_{algo}.npz"
+        if path.exists():
+            assert actor_regime(load_actor(path).meta) in REGIMES
+
+
+def test_deck_sim_run_says_what_a_learned_policy_learnt_from(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--scene", "deck1", "--policy", "dqn", "--episodes", "1", "--no-record", "--quiet",
+                 "--out", str(out)]) == 0
+    assert "dqn learnt from the reward alone (regime: reward)" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text())["regime"] == "reward"
+    assert "regime: reward" in (out / "results.md").read_text()
+    out2 = tmp_path / "zero"
+    assert main(["run", "--scene", "deck1", "--policy", "zero", "--episodes", "1", "--no-record", "--quiet",
+                 "--out", str(out2)]) == 0
+    assert "learnt from" not in capsys.readouterr().out
+    assert json.loads((out2 / "summary.json").read_text())["regime"] is None
