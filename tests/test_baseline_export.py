@@ -178,7 +178,7 @@ def test_project_readme_table_matches_results_json():
         cells = (c.strip() for c in line.strip("|").split("|"))
         scene, label, learnt, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
-        assert learnt == ("reward only" if labels[label] in ("dqn", "a2c") else "full-knowledge planner's labels")
+        assert learnt == ("reward" if labels[label] in ("dqn", "a2c") else "oracle-teacher")
         assert runs == script.seeds_cell(record["seeds"]), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
@@ -216,7 +216,7 @@ def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_pat
     assert script.write_project_table(report, readme)
     once = readme.read_text(encoding="utf-8")
     assert once.startswith(f"intro\n{start}\n| scene | agent |") and once.endswith(f"{end}\noutro\n")
-    assert ("| deck2 | MDDPG | full-knowledge planner's labels | 2 (seeds 0, 1; mean action) | 90.5 % | 9.0 % | "
+    assert ("| deck2 | MDDPG | oracle-teacher | 2 (seeds 0, 1; mean action) | 90.5 % | 9.0 % | "
             "0.5 % | 0.0 % | 320,000 | 51 min |") in once
     assert "old" not in once
     assert script.write_project_table(report, readme) and readme.read_text(encoding="utf-8") == once  # idempotent
