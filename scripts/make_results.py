@@ -276,6 +276,8 @@ def main() -> None:
         "## Tables",
         "",
         markdown_tables(res),
+        "Why MDDPG turns more than DDPG here: [benchmarks.md](benchmarks.md#turningpy) splits the turning by speed.",
+        "",
         "## Targets",
         "",
         *targets(res),

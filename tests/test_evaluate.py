@@ -6,7 +6,7 @@ import json
 import pytest
 
 from deck_sim.cli import main
-from deck_sim.evaluation import EvalConfig, EvalError, evaluate, same_results, write_report
+from deck_sim.evaluation import EvalConfig, EvalError, EvalResults, evaluate, same_results, write_report
 from deck_sim.scenes import SceneSpecError
 
 SMALL = dict(agents=("mddpg", "apf"), scenes=("deck1",), episodes=3, chunk=2, workers=2, record="none")
@@ -211,3 +211,19 @@ def test_a_scene_file_is_reported_under_its_spec_name(tmp_path):
     path.write_text(dump_scene(load_scene("deck1")))
     res = evaluate(EvalConfig(agents=("zero",), scenes=(str(path),), episodes=1, backend="serial", record="none"))
     assert res.summary("deck1", "zero")["episodes"] == 1
+
+
+def test_the_report_states_the_direction_of_each_mddpg_ddpg_difference():
+    from deck_sim.evaluation.report import prediction_differences
+
+    def summary(agent, length, turning):
+        return {"scene": "deck1", "agent": agent, "path_length": length, "path_length_ci": [length - 1, length + 1],
+                "turning_deg": turning, "turning_deg_ci": [turning - 5, turning + 5]}
+
+    res = EvalResults(EvalConfig(**SMALL), [], [summary("mddpg", 120.0, 100.0), summary("ddpg", 125.0, 60.0)])
+    lines = prediction_differences(res, ["deck1", "deck2"])
+    apart = "(the intervals are apart)"
+    paper = "the paper's: 0.02 Unity units shorter."
+    assert f"- deck1: MDDPG drives a path 5.0 m shorter than DDPG {apart}; {paper}" in lines
+    assert f"- deck1: MDDPG turns 40.0 deg more than DDPG {apart}; the paper's: 0.16 deg less." in lines
+    assert not prediction_differences(EvalResults(EvalConfig(**SMALL), [], [summary("mddpg", 1.0, 1.0)]), ["deck1"])

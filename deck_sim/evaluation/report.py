@@ -166,6 +166,7 @@ def markdown_tables(res: EvalResults) -> str:
             f"{_num(x, 'turning_deg')} | {_paper('path_length', s, a, '.2f')} | "
             f"{_paper('turning_deg', s, a, '.2f')} |"
         )
+    lines += prediction_differences(res, scenes)
     lines += [
         "",
         "**Reward and safety** (the paper gives reward only as curves: about 150 at the plateau for DQN, DDPG and "
@@ -188,6 +189,37 @@ def markdown_tables(res: EvalResults) -> str:
             f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def prediction_differences(res: EvalResults, scenes: list[str]) -> list[str]:
+    """Lines stating, per scene where both were evaluated, whether MDDPG's path is longer or shorter than DDPG's
+    and whether it turns more or less, ours and the paper's (Tables 2-3), with whether our 95 % intervals
+    overlap."""
+    lines: list[str] = []
+    for s in scenes:
+        m, d = _find(res, s, "mddpg"), _find(res, s, "ddpg")
+        if m is None or d is None:
+            continue
+        for key, unit, more, less in (
+            ("path_length", "m", "longer", "shorter"),
+            ("turning_deg", "deg", "more", "less"),
+        ):
+            ours = m.get(key, float("nan")) - d.get(key, float("nan"))
+            if math.isnan(ours):
+                continue
+            (m_lo, m_hi), (d_lo, d_hi) = m[f"{key}_ci"], d[f"{key}_ci"]
+            overlap = "the intervals overlap" if m_lo <= d_hi and d_lo <= m_hi else "the intervals are apart"
+            verb = "turns" if key == "turning_deg" else "drives a path"
+            text = f"- {s}: MDDPG {verb} {abs(ours):.1f} {unit} {more if ours > 0 else less} than DDPG ({overlap})"
+            paper = PAPER[key].get(s, {})
+            if "mddpg" in paper and "ddpg" in paper:
+                theirs = paper["mddpg"] - paper["ddpg"]
+                text += f"; the paper's: {abs(theirs):.2f} {'Unity units' if unit == 'm' else unit} "
+                text += f"{more if theirs > 0 else less}"
+            lines.append(text + ".")
+    if lines:
+        lines = ["", "**MDDPG against DDPG without prediction, the direction of each difference**:", "", *lines]
+    return lines
 
 
 def jsonable(x: Any) -> Any:
