@@ -1,13 +1,20 @@
-"""Training throughput: environment plus update steps per second, deck_sim's DDPG against stable-baselines3's DDPG.
+"""Training throughput: environment steps per second of a shipped recipe on each backend, and deck_sim's DDPG
+against stable-baselines3's DDPG.
 
-Both learn on the same environment (the scene's Gymnasium adapter, MPC prediction in the observation), with the
-same networks (2 x 256, ReLU), batch 256, Adam, gamma, tau, Gaussian noise and one gradient update per environment
-step after the same number of random steps. Ours runs twice: with its environment in a worker process (the
-physics overlaps the updates on a second core; the default of the tuned preset) and inline (one core, like SB3).
-Each agent is timed over the steps after its warm-up; they alternate in rounds within one run so that machine
-load falls on all, and the ratios of their medians are printed with the machine. Single-threaded torch.
+Recipe (``--parts recipe``): the MDDPG config of ``load_recipe(--recipe)`` (its networks, environments, update
+ratio, planner labels and scene fields) with ``--demos`` demonstration episodes, no pre-training, evaluations or
+checkpoints, and its first update at step ``--warmup``; each backend and worker count of ``--backends`` and
+``--workers`` (``local`` with 0 workers steps inline) runs the loop to ``--warmup`` steps, then is timed over the
+next ``--steps``, the full loop (acting, stepping, planner labels, updates, replay) included. The variants alternate
+in rounds so that machine load falls on all; the medians and their ratios to the first variant are printed.
 
-    python benchmarks/train_speed.py [--scene deck1] [--steps 1500] [--warmup 300] [--rounds 3]
+SB3 (``--parts sb3``): both learn on the same environment (the scene's Gymnasium adapter, MPC prediction in the
+observation), with the same networks (2 x 256, ReLU), batch 256, Adam, gamma, tau, Gaussian noise and one gradient
+update per environment step after the same number of random steps. Ours runs twice: with its environment in a worker
+process (the physics overlaps the updates on a second core) and inline (one core, like SB3). Single-threaded torch.
+
+    python benchmarks/train_speed.py [--parts recipe,sb3] [--recipe deck1] [--backends local,ray] [--workers 1,2]
+        [--steps 1600] [--warmup 400] [--rounds 2] [--scene deck1]
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
+os.environ.setdefault("RAY_AUTH_MODE", "disabled")
 
 import argparse  # noqa: E402
 import statistics  # noqa: E402
@@ -26,8 +34,66 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.config import make_config  # noqa: E402
+from training.config import TrainConfig, make_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
+from training.recipes import load_recipe  # noqa: E402
+
+
+def recipe_config(recipe: str, warmup: int, demos: int, seed: int) -> TrainConfig:
+    """The recipe's MDDPG config, trimmed to a timed window: ``demos`` demonstrations, no pre-training,
+    evaluations or checkpoints, the first update at ``warmup`` steps."""
+    return load_recipe(recipe).config(
+        "mddpg",
+        seed,
+        demo_episodes=demos,
+        pretrain_updates=0,
+        learning_starts=warmup,
+        eval_every=0,
+        checkpoint_every=0,
+        log_every=10**9,
+        polish_epochs=0,
+        dagger_steps=0,
+    )
+
+
+def timed(cfg: TrainConfig, warmup: int, steps: int, **runner: object) -> float:
+    """Environment steps per second of ``cfg``'s loop over ``steps`` steps after ``warmup`` (``runner``: the
+    ``Trainer``'s backend and workers)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(cfg, tmp, progress=False, **runner)
+        try:
+            trainer.train(stop_at=warmup)
+            start, t0 = trainer.step, time.perf_counter()
+            trainer.train(stop_at=warmup + steps)
+            return (trainer.step - start) / (time.perf_counter() - t0)
+        finally:
+            trainer.close()
+
+
+def recipe_part(args: argparse.Namespace) -> None:
+    variants = [(b, int(w)) for b in args.backends.split(",") for w in args.workers.split(",")]
+    if any(b == "ray" for b, _ in variants):
+        import ray
+
+        ray.init(num_cpus=max(w for _, w in variants), include_dashboard=False, log_to_driver=False)
+    cfg = recipe_config(args.recipe, args.warmup, args.demos, seed=0)
+    print(
+        f"recipe {args.recipe} (mddpg): {cfg.num_envs} environments, {cfg.updates_per_step} updates per step, "
+        f"actor {cfg.actor_arch}, {args.demos} demonstrations, first update at {args.warmup} steps, "
+        f"{args.steps} timed steps, {args.rounds} rounds"
+    )
+    rates: dict[tuple[str, int], list[float]] = {v: [] for v in variants}
+    for r in range(args.rounds):
+        for backend, workers in variants:
+            rate = timed(cfg, args.warmup, args.steps, backend=backend, workers=workers)
+            rates[backend, workers].append(rate)
+            print(f"round {r}: {backend} {workers} workers: {rate:.1f} env steps/s "
+                  f"(load {os.getloadavg()[0]:.1f})", flush=True)
+    first = statistics.median(rates[variants[0]])
+    for (backend, workers), values in rates.items():
+        m = statistics.median(values)
+        print(f"median: {backend} backend, {workers} workers{' (inline)' if not workers else ''}: {m:.1f} env steps/s, "
+              f"{m / first:.2f}x {variants[0][0]} {variants[0][1]}")
 
 
 def ours(scene: str, steps: int, warmup: int, seed: int, worker: bool) -> float:
@@ -47,14 +113,7 @@ def ours(scene: str, steps: int, warmup: int, seed: int, worker: bool) -> float:
         eval_episodes=1,
         env_worker=worker,
     )
-    with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(cfg, tmp, progress=False)
-        trainer.train(stop_at=warmup)
-        t0 = time.perf_counter()
-        trainer.train(stop_at=warmup + steps)
-        rate = steps / (time.perf_counter() - t0)
-        trainer.close()
-        return rate
+    return timed(cfg, warmup, steps)
 
 
 def sb3(scene: str, steps: int, warmup: int, seed: int) -> float:
@@ -95,26 +154,17 @@ def sb3(scene: str, steps: int, warmup: int, seed: int) -> float:
     return steps / (time.perf_counter() - Clock.t_start)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scene", default="deck1")
-    parser.add_argument("--steps", type=int, default=1500, help="timed steps per measurement")
-    parser.add_argument("--warmup", type=int, default=300, help="random steps before the first update")
-    parser.add_argument("--rounds", type=int, default=3)
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    import stable_baselines3
-
-    print(machine(torch=torch.__version__, sb3=stable_baselines3.__version__))
+def sb3_part(args: argparse.Namespace) -> None:
+    warmup = args.warmup
     print(
         f"scene {args.scene}, predictor mpc, 2x256 networks, batch 256, 1 update per env step, "
-        f"{args.steps} timed steps after {args.warmup} random ones, {args.rounds} rounds"
+        f"{args.steps} timed steps after {warmup} random ones, {args.rounds} rounds"
     )
     a, c, b = [], [], []
     for r in range(args.rounds):
-        a.append(ours(args.scene, args.steps, args.warmup, seed=r, worker=True))
-        c.append(ours(args.scene, args.steps, args.warmup, seed=r, worker=False))
-        b.append(sb3(args.scene, args.steps, args.warmup, seed=r))
+        a.append(ours(args.scene, args.steps, warmup, seed=r, worker=True))
+        c.append(ours(args.scene, args.steps, warmup, seed=r, worker=False))
+        b.append(sb3(args.scene, args.steps, warmup, seed=r))
         print(
             f"round {r}: deck_sim DDPG {a[-1]:.1f} steps/s (env worker), {c[-1]:.1f} (inline); "
             f"SB3 DDPG {b[-1]:.1f} steps/s; ratios {a[-1] / b[-1]:.2f}x, {c[-1] / b[-1]:.2f}x",
@@ -125,7 +175,39 @@ def main() -> None:
         f"median: deck_sim DDPG {ma:.1f} steps/s with its env worker ({ma / mb:.2f}x SB3, target >= 1.2x), "
         f"{mc:.1f} inline ({mc / mb:.2f}x); SB3 DDPG {mb:.1f} steps/s"
     )
-    print(f"load average while it ran: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parts", default="recipe,sb3", help="recipe and/or sb3 (comma-separated)")
+    parser.add_argument("--recipe", default="deck1", help="the shipped recipe of the recipe part")
+    parser.add_argument("--backends", default="local", help="backends of the recipe part: local and/or ray")
+    parser.add_argument("--workers", default="1,2", help="worker counts of the recipe part (local 0: inline)")
+    parser.add_argument("--demos", type=int, default=4, help="demonstration episodes of the recipe part")
+    parser.add_argument("--scene", default="deck1", help="the scene of the SB3 part")
+    parser.add_argument("--steps", type=int, default=1600, help="timed environment steps per measurement")
+    parser.add_argument("--warmup", type=int, default=400, help="steps before the first update")
+    parser.add_argument("--rounds", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    parts = args.parts.split(",")
+    versions = {"torch": torch.__version__}
+    if "sb3" in parts:
+        import stable_baselines3
+
+        versions["sb3"] = stable_baselines3.__version__
+    if "ray" in args.backends:
+        import ray
+
+        versions["ray"] = ray.__version__
+    print(machine(**versions))
+    print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores")
+    if "recipe" in parts:
+        recipe_part(args)
+    if "sb3" in parts:
+        sb3_part(args)
+    print(f"load average at the end: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores")
+
 
 if __name__ == "__main__":
     main()

@@ -227,6 +227,29 @@ def check_compatible(config: TrainConfig, saved: dict[str, Any], path: Path) -> 
         raise CheckpointError(f"{path} was written by another configuration ({detail})")
 
 
+def acting_workers(
+    config: TrainConfig, backend: str, workers: int | None, state: dict[str, Any] | None, path: str | os.PathLike[str]
+) -> int:
+    """The workers a run steps its environments in (``Trainer``'s ``workers``; 0: inline), checked: ``ConfigError``
+    for a count the backend cannot take, ``CheckpointError`` where a resumed run (checkpoint ``state`` read from
+    ``path``) would act in another count of groups than it did (a checkpoint without the count acted in one)."""
+    saved = None if state is None else int(state.get("groups", 1))
+    if workers is None:
+        workers = (1 if config.env_worker else 0) if backend == "local" else 1
+        workers = saved if saved is not None and saved > 1 else workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < (0 if backend == "local" else 1):
+        least = "0 (inline) or more" if backend == "local" else "at least 1"
+        raise ConfigError(f"workers: {least} on the {backend} backend, got {workers!r}")
+    if workers > config.num_envs:
+        raise ConfigError(f"workers: at most num_envs ({config.num_envs}), one environment each, got {workers}")
+    if saved is not None and max(workers, 1) != saved:
+        raise CheckpointError(
+            f"{path}: the run acted in {saved} group(s) of environments; resume it with --workers {saved} "
+            "(a run's numbers depend on that count)"
+        )
+    return workers
+
+
 def check_polished(trainer: Trainer, saved: dict[str, Any], end: int) -> None:
     """A polished run is finished: its actor is no longer the online one, so it can be neither extended to ``end``
     steps nor polished again with other settings, nor can its DAgger round be undone."""
@@ -266,6 +289,7 @@ def save_checkpoint(trainer: Trainer) -> Path:
         "polished": trainer.polished,
         "dagger_done": trainer.dagger_done,
         "demo_summary": dict(trainer.demo_summary),
+        "groups": max(trainer.workers, 1),
         "agent": trainer.agent.state_dict(),
         "buffer": trainer.buffer.state_dict(),
         "noise": trainer.noise.state_dict(),
@@ -278,7 +302,7 @@ def save_checkpoint(trainer: Trainer) -> Path:
                 "ret": s.ret,
                 "length": s.length,
                 "actions": torch.from_numpy(np.asarray(s.actions, dtype=np.float64).reshape(-1, 2)),
-                "obs": torch.from_numpy(np.asarray(s.obs, dtype=np.float32)),
+                "obs": torch.from_numpy(np.array(s.obs, dtype=np.float32)),  # (a Ray actor's are read-only)
             }
             for s in trainer.slots
         ],
@@ -321,7 +345,7 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
         actions = saved["actions"].numpy()
         if len(actions):  # replay the episode so far: same seed, same actions, same state (planner included)
             seed = train_episode_seed(trainer.config.seed, slot.index, slot.episode)
-            slot.obs = trainer.agent_obs(slot, trainer.envs.replay(slot.index, seed, actions))
+            slot.obs = trainer.envs.replay(slot.index, seed, actions)
             slot.actions = list(actions)
         if not np.array_equal(slot.obs, saved["obs"].numpy()):
             raise CheckpointError(

@@ -37,8 +37,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     from training.config import ConfigError
     from training.loop import CheckpointError
 
+    _check_backend(args)
     try:
         config, baseline = _plan_run(args, out)
+        if baseline is not None and (args.backend != "local" or args.workers is not None):
+            raise ConfigError(f"--backend and --workers apply to mddpg and ddpg, not to {baseline['algo']}")
         if args.print_config:
             if config is not None:
                 shown = config.to_dict()
@@ -54,7 +57,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         if config is not None:
             from training.loop import Trainer
 
-            summary = Trainer(config, out, resume=args.resume, progress=not args.quiet).train()
+            trainer = Trainer(config, out, resume=args.resume, progress=not args.quiet, backend=args.backend,
+                              workers=args.workers, ray_address=args.ray_address)
+            try:
+                summary = trainer.train()
+            finally:
+                trainer.close()
         else:
             from training.baselines import train_baseline
 
@@ -75,6 +83,23 @@ def cmd_train(args: argparse.Namespace) -> int:
     actor = "exported actor actor.npz" if (out / "actor.npz").exists() else "no actor yet (the run is not finished)"
     print(f"wrote {out} (config.json, progress.csv, eval.csv, tb/, checkpoint; {actor})")
     return 0
+
+
+def _check_backend(args: argparse.Namespace) -> None:
+    """Refuse, before anything is written, a worker count below 1, a Ray address without the Ray backend, the Ray
+    backend without Ray installed, and a Ray address where no cluster answers (``ValueError``, one line)."""
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    if args.ray_address is not None and args.backend != "ray":
+        raise ValueError("--ray-address needs --backend ray")
+    if args.backend == "ray":
+        from training.ray_backend import require_ray
+
+        require_ray()
+        if args.ray_address:
+            from deck_sim.evaluation.harness import check_ray_address
+
+            check_ray_address(args.ray_address)
 
 
 def cmd_ensemble(args: argparse.Namespace) -> int:
@@ -280,6 +305,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="continue the run in --out from its checkpoint, with its saved config: --algo, --scene, "
                         "--seed, --preset and --recipe, if given, must be the run's; --steps may not be below "
                         "the steps done")
+    p.add_argument("--backend", default="local", choices=("local", "ray"),
+                   help="where the environments step: local (inline or worker processes, the default) or ray "
+                        "(Ray actors; pip install 'deck-sim[ray]')")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (local) or Ray actors (ray), each stepping and acting for a group of the "
+                        "environments (default: the config's env_worker on local, 1 on ray, a resumed run's own); "
+                        "runs with the same count give the same numbers on either backend")
+    p.add_argument("--ray-address", default=None,
+                   help="an existing Ray cluster (host:port or ray://host:port) for --backend ray; default: a local "
+                        "Ray with --workers CPUs")
     p.add_argument("--quiet", action="store_true", help="no progress report")
     p.add_argument("--print-config", action="store_true",
                    help="print the run's full configuration as JSON and exit without training")

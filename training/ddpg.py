@@ -39,6 +39,21 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
         t.copy_(s)
 
 
+class Acting:
+    """The greedy policy of an observation normaliser and an actor: actions (n, act_dim) float64 in [-1, 1] for
+    raw observations (n, obs_dim), one batched forward pass. It holds the modules themselves: the learner's live
+    ones, or a pickled copy in a rollout worker (``training.runners``), which acts exactly as they did."""
+
+    def __init__(self, norm: RunningNorm, actor: nn.Module) -> None:
+        self.norm = norm
+        self.actor = actor
+
+    @torch.no_grad()
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(np.asarray(obs, dtype=np.float32))
+        return self.actor(self.norm(x)).numpy().astype(np.float64)
+
+
 class DDPGAgent:
     """Actor, critic(s), their targets, optimisers and the observation normaliser.
 
@@ -86,11 +101,14 @@ class DDPGAgent:
         """The cloning weight of the next actor updates (the trainer follows ``bc_weight_final``'s schedule)."""
 
     # -- acting ---------------------------------------------------------------------------------------------
-    @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Greedy actions (n, act_dim) in [-1, 1] for raw observations (n, obs_dim), one batched forward pass."""
-        x = torch.as_tensor(np.asarray(obs, dtype=np.float32))
-        return self.actor(self.norm(x)).numpy().astype(np.float64)
+        return self.acting()(obs)
+
+    def acting(self) -> Acting:
+        """The greedy policy as it stands (the live normaliser and actor; a runner copies them where it acts
+        elsewhere)."""
+        return Acting(self.norm, self.actor)
 
     # -- learning -------------------------------------------------------------------------------------------
     @torch.no_grad()
@@ -144,7 +162,7 @@ class DDPGAgent:
     def _actor_step(self, obs: torch.Tensor, batch: Batch, clone_only: bool) -> dict[str, float]:
         cfg = self.config
         action = self.actor(obs)
-        q_pi = self.critic(obs, action)[0]
+        q_pi = self.critic.first(obs, action)
         actor_loss = -q_pi.mean()
         bc_loss = torch.zeros(())
         share = 0.0
@@ -156,7 +174,7 @@ class DDPGAgent:
             mask = batch.labelled
             if cfg.q_filter and not clone_only:
                 with torch.no_grad():
-                    q_expert = self.critic(obs, batch.expert_action)[0]
+                    q_expert = self.critic.first(obs, batch.expert_action)
                     mask = mask * (q_expert > q_pi.detach()).float()
             err = ((action - batch.expert_action) ** 2).sum(-1)
             if cfg.bc_slow_weight != 1.0:  # a weighted mean: the slow actions weigh bc_slow_weight times

@@ -46,6 +46,7 @@ from training.checkpoints import (
     PREVIOUS,
     RESUMABLE_CHANGES,
     CheckpointError,
+    acting_workers,
     check_budget,
     check_compatible,
     check_polished,
@@ -55,20 +56,13 @@ from training.checkpoints import (
     restore,
     save_checkpoint,
 )
-from training.config import CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
+from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
 from training.ddpg import DDPGAgent
-from training.envs import (
-    ObservationLayout,
-    collect_demonstrations,
-    env_layout,
-    make_env,
-    mover_pad_fills,
-    stage_overrides,
-)
+from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
 from training.noise import make_noise
 from training.runlog import EVAL_FIELDS, PROGRESS_FIELDS, EpisodeStats, RunLog, eval_row, progress_row
-from training.runners import make_runner
+from training.runners import AgentView, EnvSpec, StepOrder, make_runner
 
 log = logging.getLogger(__name__)
 
@@ -110,10 +104,24 @@ class Trainer:
         resume: continue from ``run_dir/checkpoint.pt`` (its config must equal ``config`` but for
             ``RESUMABLE_CHANGES``, and ``total_steps`` may not fall below the steps the run has done).
         progress: show a progress bar.
+        backend: where the environments step (``training.runners``): ``local`` or ``ray``.
+        workers: worker processes (``local``; 0 steps inline) or Ray actors (``ray``), each holding a contiguous
+            group of the environments and acting for it; None: one worker where ``config.env_worker`` asks for it
+            (none otherwise) on ``local``, one actor on ``ray``, or a resumed run's own count of groups. The count
+            of acting groups, ``max(workers, 1)``, is part of what the run's numbers depend on; the checkpoint
+            keeps it and a resumed run must act in as many.
+        ray_address: the Ray cluster of ``ray`` (None: a local one).
     """
 
     def __init__(
-        self, config: TrainConfig, run_dir: str | os.PathLike[str], resume: bool = False, progress: bool = True
+        self,
+        config: TrainConfig,
+        run_dir: str | os.PathLike[str],
+        resume: bool = False,
+        progress: bool = True,
+        backend: str = "local",
+        workers: int | None = None,
+        ray_address: str | None = None,
     ) -> None:
         self.config = config.validate()
         self.run_dir = Path(run_dir)
@@ -138,11 +146,13 @@ class Trainer:
         torch.use_deterministic_algorithms(True)
         self.rng = np.random.default_rng(cfg.seed)
         self.slots = [_Slot(i) for i in range(cfg.num_envs)]
-        self.envs = make_runner(cfg.num_envs, cfg.env_worker)
         # the full scene fixes the layout of every observation
         probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)
         self.layout = env_layout(probe)
         probe.close()
+        self.workers = acting_workers(cfg, backend, workers, self._resume_state, self.run_dir / CHECKPOINT)
+        self.envs: Any = None
+        self.envs = make_runner(cfg.num_envs, self.workers, AgentView(self.layout, cfg), backend, ray_address)
         self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1), self.layout.shapes)
         self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, 2)
         self.noise = make_noise(cfg.noise, cfg.num_envs, 2, cfg.noise_sigma, cfg.ou_theta)
@@ -160,7 +170,7 @@ class Trainer:
         """Environment steps of the DAgger rounds (``dagger_steps``) whose fit is done."""
         self.demo_summary: dict[str, float] = {}
         self.last_eval_step = -1
-        self._pad_fills: dict[str, float] | None = None  # left-out movers' scene-dependent fills (at first use)
+        self._specs: dict[int, EnvSpec] = {}
         self._eval_env: Any = None
         self._stop = False
         self._started = False
@@ -184,27 +194,27 @@ class Trainer:
         stages = self.config.curriculum
         return stages[index] if index < len(stages) else None
 
-    def agent_obs(self, slot: _Slot, flat: np.ndarray) -> np.ndarray:
-        """An observation of ``slot``'s environment (its stage's layout) in the full scene's layout."""
-        if slot.layout.keys == self.layout.keys and slot.layout.shapes == self.layout.shapes:
-            return flat
-        if self._pad_fills is None:
-            self._pad_fills = mover_pad_fills(self.config)
-        return slot.layout.pad_to(flat, self.layout, self._pad_fills).astype(np.float32)
+    def env_spec(self, stage: int) -> EnvSpec:
+        """What an environment of curriculum ``stage`` is built from."""
+        if stage not in self._specs:
+            cfg = self.config
+            overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
+            self._specs[stage] = EnvSpec(cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body)
+        return self._specs[stage]
 
     def start_episode(self, slot: _Slot, stage: int | None = None) -> None:
         """Reset ``slot``'s environment for its next episode (rebuilt first when its curriculum ``stage``, by default
         the current one, changed) and its exploration noise."""
-        cfg = self.config
         stage = self._stage_index() if stage is None else stage
         if slot.stage != stage:
-            overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
-            slot.layout = self.envs.build(
-                slot.index, cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body
-            )
+            slot.layout = self.envs.build(slot.index, *self.env_spec(stage))
             slot.stage = stage
-        obs = self.envs.reset(slot.index, train_episode_seed(cfg.seed, slot.index, slot.episode))
-        slot.obs = self.agent_obs(slot, obs)
+        seed = train_episode_seed(self.config.seed, slot.index, slot.episode)
+        self._enter_episode(slot, self.envs.reset(slot.index, seed))
+
+    def _enter_episode(self, slot: _Slot, obs: np.ndarray) -> None:
+        """``slot``'s episode starts at ``obs`` (the agent's layout): its record and its exploration noise anew."""
+        slot.obs = obs
         slot.actions, slot.ret, slot.length = [], 0.0, 0
         self.noise.reset(slot.index)
 
@@ -356,26 +366,30 @@ class Trainer:
     def collect(self, explore: bool = True) -> None:
         """One step of every environment; the learner's updates run while the environments step.
 
-        Order (the same for both runners, so that they give the same numbers): act on the current observations,
-        start the step, update from the replay buffer as it stands, then store the step's transitions.
-        ``explore=False`` (a DAgger round): the greedy actor acts, and neither the networks, the normaliser nor
-        the noise and cloning schedules change.
+        Order (the same for every runner, so that they give the same numbers; ``training.runners``): draw the
+        step's random actions or exploration noise, start the step (each group of environments acts on its
+        current observations, steps, and resets where an episode ended), update from the replay buffer as it
+        stands, then store the step's transitions. ``explore=False`` (a DAgger round): the greedy actor acts, and
+        neither the networks, the normaliser nor the noise and cloning schedules change.
         """
         cfg = self.config
-        obs = np.stack([s.obs for s in self.slots])
         if not explore:
-            actions = np.clip(self.agent.act(obs), -1.0, 1.0)
+            order = StepOrder(policy=self.agent.acting())
         elif self.step < cfg.learning_starts and not self.buffer.n_demo:
-            actions = self.rng.uniform(-1.0, 1.0, (cfg.num_envs, 2))
+            order = StepOrder(actions=self.rng.uniform(-1.0, 1.0, (cfg.num_envs, 2)))
         else:
-            actions = np.clip(self.agent.act(obs) + self.noise.sample(self.rng), -1.0, 1.0)
-        self.envs.step_async(actions)
+            order = StepOrder(noise=self.noise.sample(self.rng), policy=self.agent.acting())
+        stage = self._stage_index()
+        spec = None if all(s.stage == stage for s in self.slots) else self.env_spec(stage)
+        order.seeds = [self._next_seed(s) for s in self.slots]
+        order.builds = [None if s.stage == stage else spec for s in self.slots]
+        self.envs.step_async(order)
         if explore:
             self._learn(self.step + cfg.num_envs)
         results = self.envs.step_wait()
         rows: dict[str, list[Any]] = {k: [] for k in ("obs", "action", "reward", "next_obs", "terminated", "expert")}
-        for slot, action, res in zip(self.slots, actions, results, strict=True):
-            next_obs = self.agent_obs(slot, res.obs)
+        for slot, res in zip(self.slots, results, strict=True):
+            action, next_obs = res.action, res.obs
             slot.actions.append(action)
             slot.ret += res.reward
             slot.length += 1
@@ -388,7 +402,12 @@ class Trainer:
             if res.terminated or res.truncated:
                 self.stats.episode_end(outcome_of(res.info, res.truncated and not res.terminated), slot.ret)
                 slot.episode += 1
-                self.start_episode(slot)
+                if res.reset_obs is None:
+                    self.start_episode(slot, stage)
+                else:  # reset (and rebuilt for the stage) by its runner within the step
+                    if res.shapes is not None:
+                        slot.layout, slot.stage = ObservationLayout(res.shapes), stage
+                    self._enter_episode(slot, res.reset_obs)
             else:
                 slot.obs = next_obs
         batch = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items() if k != "expert"}
@@ -402,6 +421,14 @@ class Trainer:
         frac = min(1.0, self.step / max(1.0, cfg.noise_decay * cfg.total_steps))
         self.noise.sigma = cfg.noise_sigma + frac * (cfg.noise_sigma_final - cfg.noise_sigma)
         self.agent.bc_weight = bc_weight_at(cfg, self.step)
+
+    def _next_seed(self, slot: _Slot) -> int | None:
+        """The reset seed of ``slot``'s next episode, or None where there is none (the last one's reset fails
+        as it starts, outside the step)."""
+        try:
+            return train_episode_seed(self.config.seed, slot.index, slot.episode + 1)
+        except ConfigError:
+            return None
 
     def _learn(self, step: int) -> None:
         """The updates owed once the run reaches ``step`` environment steps (``updates_per_step`` each)."""

@@ -139,8 +139,18 @@ class SetActor(nn.Module):
         for name in self.names:
             elements = obs[..., getattr(self, f"idx_{name}")]  # (..., n, f)
             ctx = context.unsqueeze(-2).expand(*elements.shape[:-1], context.shape[-1])
-            parts.append(self.encoders[name](torch.cat([elements, ctx], dim=-1)).max(dim=-2).values)
+            encoded = self.encoders[name](torch.cat([elements, ctx], dim=-1))
+            parts.append(pool(encoded))
         return self.head(torch.cat(parts, dim=-1))
+
+
+def pool(encoded: torch.Tensor) -> torch.Tensor:
+    """The maximum over the obstacles' axis (-2) of a set's encoded rows. Without a gradient to keep, ``amax``
+    (the values alone, the same numbers); otherwise ``max``, whose backward sends each column's gradient to its
+    first maximum."""
+    if torch.is_grad_enabled() and encoded.requires_grad:
+        return encoded.max(dim=-2).values
+    return encoded.amax(dim=-2)
 
 
 class Critic(nn.Module):
@@ -154,3 +164,8 @@ class Critic(nn.Module):
         """Every head's Q values, each (B,)."""
         x = torch.cat([obs, action], dim=-1)
         return [h(x).squeeze(-1) for h in self.heads]
+
+    def first(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The first head's Q values (B,), the one the actor's loss reads (the same numbers as ``forward``'s
+        first)."""
+        return self.heads[0](torch.cat([obs, action], dim=-1)).squeeze(-1)
