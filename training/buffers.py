@@ -4,10 +4,15 @@ Transitions are stored as raw float32 observations; normalisation happens at sam
 buffer's content does not depend on statistics that change during training. ``terminated`` marks a true end of the
 episode (goal, collision, leaving the deck: no bootstrap); a time-limit truncation is stored with
 ``terminated = False`` and the final observation as ``next_obs``, so the critic bootstraps through it.
+
+With ``track_episodes`` the buffer also knows which of the agent's transitions belong to one episode, in order
+(``episode_rows``), and how each ended (``reached``, ``failed``): what hindsight goals and n-step returns
+(``training.her``) read. The bookkeeping draws no random numbers and changes no stored transition.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -27,6 +32,30 @@ class Batch(NamedTuple):
     """The demonstrator's own action (the cloning target; equals ``action`` unless noise was injected)."""
     labelled: torch.Tensor
     """1 where ``expert_action`` holds a label: every demonstration, and agent transitions relabelled online."""
+    discount: torch.Tensor | None = None
+    """Per transition, the discount of the bootstrap from ``next_obs`` (gamma^m after an m-step return); None:
+    every transition is one step, discounted by the config's gamma."""
+
+
+@dataclass(frozen=True)
+class EpisodeMarks:
+    """Where n transitions stand in their episodes and how they ended (arrays of shape (n,)).
+
+    Attributes:
+        episode: an id of each transition's episode, unique to the run.
+        step: the transition's step in its episode (0 for the first).
+        reached: 1 where it reached the target.
+        failed: 1 where it ended in a collision, off the surface or in divergence.
+        goal_ok: 1 where its reward can be recomputed for another target (0 after physics divergence).
+        end: 1 on the episode's last transition (terminated or truncated).
+    """
+
+    episode: np.ndarray
+    step: np.ndarray
+    reached: np.ndarray
+    failed: np.ndarray
+    goal_ok: np.ndarray
+    end: np.ndarray
 
 
 class ReplayBuffer:
@@ -35,9 +64,11 @@ class ReplayBuffer:
     Args:
         capacity: rows in all, demonstrations included.
         obs_dim, act_dim: sizes of one observation and one action.
+        track_episodes: keep each agent episode's rows in step order and how each transition ended (``add``'s
+            ``marks``).
     """
 
-    def __init__(self, capacity: int, obs_dim: int, act_dim: int) -> None:
+    def __init__(self, capacity: int, obs_dim: int, act_dim: int, track_episodes: bool = False) -> None:
         if capacity < 1:
             raise ValueError(f"capacity must be at least 1, got {capacity}")
         self.capacity = int(capacity)
@@ -51,6 +82,22 @@ class ReplayBuffer:
         self.n_demo = 0
         self.size = 0
         self._next = 0
+        self.track_episodes = bool(track_episodes)
+        if self.track_episodes:
+            self.episode = np.full(capacity, -1, dtype=np.int64)
+            """The agent episode each row belongs to (-1: a demonstration, or no row yet)."""
+            self.episode_pos = np.zeros(capacity, dtype=np.int64)
+            """Each row's index in its episode's ``episode_rows``: the step of the episode it records."""
+            self.reached = np.zeros(capacity, dtype=np.float32)
+            """1 where the transition reached the episode's target."""
+            self.failed = np.zeros(capacity, dtype=np.float32)
+            """1 where it ended in a collision, off the surface or in divergence."""
+            self.goal_ok = np.zeros(capacity, dtype=np.float32)
+            """1 where its reward can be recomputed for another target (0 after physics divergence: reward 0)."""
+            self.episode_end = np.zeros(capacity, dtype=np.float32)
+            """1 on an episode's last transition (terminated or truncated)."""
+            self.episode_rows: dict[int, list[int]] = {}
+            """Per episode still in the buffer, its rows by step (-1 where overwritten)."""
 
     @property
     def n_agent(self) -> int:
@@ -99,14 +146,20 @@ class ReplayBuffer:
         next_obs: np.ndarray,
         terminated: np.ndarray,
         expert_action: np.ndarray | None = None,
+        marks: EpisodeMarks | None = None,
     ) -> None:
         """Store a batch of the agent's transitions (n, ...), overwriting its oldest when full.
 
         ``expert_action``: what the demonstrator would have done in each ``obs`` (online relabelling), if known.
+        ``marks``: where each transition stands in its episode (required with ``track_episodes``).
         """
         n = len(obs)
         span = self.capacity - self.n_demo
         rows = self.n_demo + (self._next - self.n_demo + np.arange(n)) % span
+        if self.track_episodes:
+            if marks is None:
+                raise ValueError("a buffer that tracks episodes needs each transition's EpisodeMarks")
+            self._track(rows, marks)
         self._write(rows, obs, action, reward, next_obs, terminated)
         if expert_action is None:
             self.expert_action[rows] = 0.0
@@ -117,8 +170,33 @@ class ReplayBuffer:
         self._next = int(self.n_demo + (rows[-1] - self.n_demo + 1) % span)
         self.size = min(self.capacity, self.size + n)
 
+    def _track(self, rows: np.ndarray, marks: EpisodeMarks) -> None:
+        """Record which episode and step each new row holds, forgetting the rows it overwrites."""
+        steps = np.asarray(marks.step, dtype=np.int64).tolist()
+        for row, ep, step in zip(rows.tolist(), np.asarray(marks.episode, dtype=np.int64).tolist(), steps, strict=True):
+            old = int(self.episode[row])
+            if old >= 0:
+                lst = self.episode_rows[old]
+                pos = int(self.episode_pos[row])
+                lst[pos] = -1
+                if pos == len(lst) - 1:  # rows go in step order: nothing of that episode is left
+                    del self.episode_rows[old]
+            lst = self.episode_rows.setdefault(ep, [])
+            lst.extend([-1] * (step - len(lst)))  # (steps whose rows are gone already)
+            lst.append(row)
+            self.episode[row] = ep
+            self.episode_pos[row] = step
+        self.reached[rows] = marks.reached
+        self.failed[rows] = marks.failed
+        self.goal_ok[rows] = marks.goal_ok
+        self.episode_end[rows] = marks.end
+
     def sample(self, batch_size: int, rng: np.random.Generator, demo_fraction: float = 0.0) -> Batch:
         """Uniform rows; ``demo_fraction`` of them from the demonstrations when there are both kinds."""
+        return self.batch(self.sample_rows(batch_size, rng, demo_fraction))
+
+    def sample_rows(self, batch_size: int, rng: np.random.Generator, demo_fraction: float = 0.0) -> np.ndarray:
+        """The rows ``sample`` takes (the same draws from ``rng``)."""
         if self.size == 0:
             raise RuntimeError("cannot sample from an empty replay buffer")
         n_demo = 0
@@ -134,7 +212,7 @@ class ReplayBuffer:
                 else np.zeros(0, dtype=np.int64),
             ]
         )
-        return self.batch(rows)
+        return rows
 
     def batch(self, rows: np.ndarray) -> Batch:
         """The rows ``rows`` as a typed batch."""
@@ -158,15 +236,21 @@ class ReplayBuffer:
             "n_demo": self.n_demo,
             "size": n,
             "next": self._next,
-            **{k: torch.from_numpy(getattr(self, k)[:n].copy()) for k in self._ARRAYS},
+            **{k: torch.from_numpy(getattr(self, k)[:n].copy()) for k in self._arrays()},
         }
+
+    def _arrays(self) -> tuple[str, ...]:
+        return self._ARRAYS + (self._EPISODE_ARRAYS if self.track_episodes else ())
 
     def load_state_dict(self, state: dict[str, object]) -> None:
         """Restore what ``state_dict`` returned (the buffer must have the same capacity and sizes)."""
         if int(state["capacity"]) != self.capacity:
             raise ValueError(f"checkpoint buffer capacity {state['capacity']} != this run's {self.capacity}")
         n = int(state["size"])
-        for k in self._ARRAYS:
+        missing = [k for k in self._arrays() if k not in state]
+        if missing:
+            raise ValueError(f"checkpoint buffer lacks {', '.join(missing)} (saved without episode tracking)")
+        for k in self._arrays():
             value = state[k].numpy()
             if value.shape[1:] != getattr(self, k).shape[1:]:
                 raise ValueError(
@@ -174,5 +258,18 @@ class ReplayBuffer:
                 )
             getattr(self, k)[:n] = value
         self.n_demo, self.size, self._next = int(state["n_demo"]), n, int(state["next"])
+        if self.track_episodes:
+            self._rebuild_episode_rows()
+
+    def _rebuild_episode_rows(self) -> None:
+        """``episode_rows`` from the per-row arrays (after loading a checkpoint)."""
+        self.episode_rows = {}
+        rows = np.flatnonzero(self.episode[: self.size] >= 0)
+        for row in rows[np.lexsort((self.episode_pos[rows], self.episode[rows]))].tolist():
+            ep, pos = int(self.episode[row]), int(self.episode_pos[row])
+            lst = self.episode_rows.setdefault(ep, [])
+            lst.extend([-1] * (pos - len(lst)))  # rows already overwritten
+            lst.append(row)
 
     _ARRAYS = ("obs", "next_obs", "action", "reward", "terminated", "expert_action", "labelled")
+    _EPISODE_ARRAYS = ("episode", "episode_pos", "reached", "failed", "goal_ok", "episode_end")

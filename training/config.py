@@ -202,6 +202,14 @@ class TrainConfig:
     """Step the environments in a worker process while the learner updates (two cores overlap; same results)."""
     updates_per_step: float = 1.0
     """Gradient updates per collected environment step (update-to-data ratio; below 1 updates less often)."""
+    her_ratio: float = 0.0
+    """Hindsight goals (HER's ``future`` strategy, ``training.her``): the share of the agent's sampled transitions
+    whose target is replaced by a position the agent reached later in the same episode, with the observation's
+    target and the reward's attraction and goal terms recomputed for it. 0: off. Learns from the reward alone (no
+    planner); needs an observation without ``route``."""
+    n_step: int = 1
+    """Transitions summed per critic target: the discounted rewards of the next ``n_step`` transitions of the
+    episode, then gamma^n_step times the bootstrap (``training.her``). 1: the one-step target of eq. 3."""
     demo_episodes: int = 0
     """Episodes of the full-knowledge scripted planner placed in the replay buffer before training (DDPGfD)."""
     demo_noise: float = 0.0
@@ -317,6 +325,10 @@ class TrainConfig:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
+        if not 0.0 <= self.her_ratio <= 1.0:
+            raise ConfigError(f"her_ratio: must lie in [0, 1], got {self.her_ratio!r}")
+        if isinstance(self.n_step, bool) or not isinstance(self.n_step, int) or not 1 <= self.n_step <= 100:
+            raise ConfigError(f"n_step: must be an integer in [1, 100], got {self.n_step!r}")
         if self.demo_noise < 0:
             raise ConfigError(f"demo_noise: must be >= 0, got {self.demo_noise!r}")
         for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale", "polish_lr"):

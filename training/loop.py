@@ -39,7 +39,8 @@ from deck_sim.metrics import outcome_of, summarize
 from deck_sim.policies import LearnedPolicy
 from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import git_commit, run_episode
-from training.buffers import ReplayBuffer
+from deck_sim.scenes import load_scene
+from training.buffers import EpisodeMarks, ReplayBuffer
 from training.checkpoints import (
     CHECKPOINT,
     CHECKPOINT_FORMAT,
@@ -60,6 +61,7 @@ from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight
 from training.ddpg import DDPGAgent
 from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
+from training.her import ROUTE_REFUSAL, GoalGeometry, GoalLayoutError, HindsightSampler
 from training.noise import make_noise
 from training.runlog import EVAL_FIELDS, PROGRESS_FIELDS, EpisodeStats, RunLog, eval_row, progress_row
 from training.runners import AgentView, EnvSpec, StepOrder, make_runner
@@ -124,6 +126,8 @@ class Trainer:
         ray_address: str | None = None,
     ) -> None:
         self.config = config.validate()
+        if config.her_ratio > 0.0 and load_scene(config.scene, **config.scene_overrides).episode.route_steps > 0:
+            raise ConfigError(f"her_ratio: {ROUTE_REFUSAL}")  # (before the run folder is made)
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.commit = git_commit()  # the code this process runs, whatever the tree holds when an actor is written
@@ -154,7 +158,10 @@ class Trainer:
         self.envs: Any = None
         self.envs = make_runner(cfg.num_envs, self.workers, AgentView(self.layout, cfg), backend, ray_address)
         self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1), self.layout.shapes)
-        self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, 2)
+        tracking = cfg.her_ratio > 0.0 or cfg.n_step > 1
+        self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, 2, track_episodes=tracking)
+        self.hindsight = self._hindsight_sampler() if tracking else None
+        """Hindsight targets and n-step returns for the learner's batches (``training.her``), or None."""
         self.noise = make_noise(cfg.noise, cfg.num_envs, 2, cfg.noise_sigma, cfg.ou_theta)
         self.runlog = RunLog(self.run_dir)
         self.stats = EpisodeStats()
@@ -175,6 +182,16 @@ class Trainer:
         self._stop = False
         self._started = False
         self._t_start = time.perf_counter()
+
+    def _hindsight_sampler(self) -> HindsightSampler:
+        cfg = self.config
+        geometry = None
+        if cfg.her_ratio > 0.0:
+            try:
+                geometry = GoalGeometry.of(load_scene(cfg.scene, **cfg.scene_overrides), self.layout.shapes)
+            except GoalLayoutError as err:
+                raise ConfigError(f"her_ratio: {err}") from None
+        return HindsightSampler(geometry, cfg.her_ratio, cfg.n_step, cfg.gamma)
 
     @property
     def obs_dim(self) -> int:
@@ -388,8 +405,18 @@ class Trainer:
             self._learn(self.step + cfg.num_envs)
         results = self.envs.step_wait()
         rows: dict[str, list[Any]] = {k: [] for k in ("obs", "action", "reward", "next_obs", "terminated", "expert")}
+        marks: dict[str, list[Any]] = {k: [] for k in ("episode", "step", "reached", "failed", "goal_ok", "end")}
         for slot, res in zip(self.slots, results, strict=True):
             action, next_obs = res.action, res.obs
+            if self.buffer.track_episodes:
+                info = res.info
+                marks["episode"].append(slot.episode * cfg.num_envs + slot.index)  # unique to the run
+                marks["step"].append(slot.length)
+                marks["reached"].append(float(bool(info.get("reached_goal"))))
+                failed = info.get("collision") is not None or info.get("left_surface") or info.get("diverged")
+                marks["failed"].append(float(bool(failed)))
+                marks["goal_ok"].append(0.0 if info.get("diverged") else 1.0)
+                marks["end"].append(float(res.terminated or res.truncated))
             slot.actions.append(action)
             slot.ret += res.reward
             slot.length += 1
@@ -414,7 +441,11 @@ class Trainer:
         if explore:
             self.agent.norm.update(batch["obs"])
         expert = np.asarray(rows["expert"], dtype=np.float32) if cfg.expert_relabel else None
-        self.buffer.add(batch["obs"], batch["action"], batch["reward"], batch["next_obs"], batch["terminated"], expert)
+        episode_marks = EpisodeMarks(**{k: np.asarray(v) for k, v in marks.items()}) if marks["episode"] else None
+        self.buffer.add(
+            batch["obs"], batch["action"], batch["reward"], batch["next_obs"], batch["terminated"], expert,
+            episode_marks,
+        )
         self.step += cfg.num_envs
         if not explore:
             return
@@ -437,7 +468,11 @@ class Trainer:
             return
         self.update_debt += cfg.num_envs * cfg.updates_per_step
         while self.update_debt >= 1.0:
-            batch = self.buffer.sample(cfg.batch_size, self.rng, cfg.demo_fraction)
+            if self.hindsight is None:
+                batch = self.buffer.sample(cfg.batch_size, self.rng, cfg.demo_fraction)
+            else:
+                rows = self.buffer.sample_rows(cfg.batch_size, self.rng, cfg.demo_fraction)
+                batch = self.hindsight.batch(self.buffer, rows, self.rng)
             stats = self.agent.update(batch)
             self.stats.updates.update(stats)
             self.update_debt -= 1.0
