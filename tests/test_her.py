@@ -187,3 +187,24 @@ def test_a_hindsight_n_step_run_learns_from_the_reward_alone_and_resumes_exactly
     resumed.train()
     assert_same_run(whole, resumed)
     assert resumed.buffer.episode_rows == whole.buffer.episode_rows
+
+
+def test_configs_and_actor_records_name_their_regime(tmp_path):
+    import json
+
+    from training.baseline_config import baseline_config
+    from training.config import TrainConfig, make_config
+
+    reward = _reward_only()
+    assert reward.regime == "reward" and make_config("tuned").regime == "oracle-teacher"
+    reward.save(tmp_path / "config.json")
+    assert json.loads((tmp_path / "config.json").read_text())["regime"] == "reward"
+    assert TrainConfig.load(tmp_path / "config.json") == reward
+    with pytest.raises(ConfigError, match="regime: the config says 'reward', but its fields make 'oracle-teacher'"):
+        TrainConfig.from_dict({**make_config("tuned").to_dict(), "regime": "reward"})
+    dqn = baseline_config("dqn")
+    dqn.save(tmp_path / "dqn.json")
+    assert json.loads((tmp_path / "dqn.json").read_text())["regime"] == "reward"
+    assert type(dqn).from_dict(json.loads((tmp_path / "dqn.json").read_text())) == dqn
+    with pytest.raises(ConfigError, match="regime"):
+        type(dqn).from_dict({**dqn.to_dict(), "regime": "planner"})

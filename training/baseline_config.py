@@ -102,6 +102,9 @@ class BaselineConfig:
         algo = d.pop("algo", cls.algo)
         if algo != cls.algo:
             raise ConfigError(f"algo: this is a {cls.algo} config, got {algo!r}")
+        regime = d.pop("regime", "reward")
+        if regime != "reward":
+            raise ConfigError(f"regime: {cls.algo} learns from the reward alone, the config says {regime!r}")
         names = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(d) - set(names))
         if unknown:
@@ -111,8 +114,8 @@ class BaselineConfig:
         return cls(**d).validate()
 
     def save(self, path: str | Path) -> None:
-        """Write the config as JSON."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
+        """Write the config as JSON, with its regime (``reward``: stable-baselines3 learns from the reward alone)."""
+        Path(path).write_text(json.dumps({**self.to_dict(), "regime": "reward"}, indent=2, sort_keys=True) + "\n")
 
 
 @dataclass

@@ -167,6 +167,7 @@ def export_sb3(
         **meta,
         "format": ACTOR_FORMAT_V2,
         "algo": algo,
+        "regime": "reward",  # stable-baselines3 learns from the environment's reward alone
         "activation": activation,
         "head": head,
         # the Gymnasium adapter hands SB3 float32 observations; the numpy policy rounds its input the same way

@@ -44,7 +44,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise ConfigError(f"--backend and --workers apply to mddpg and ddpg, not to {baseline['algo']}")
         if args.print_config:
             if config is not None:
-                shown = config.to_dict()
+                shown = {**config.to_dict(), "regime": config.regime}
             else:  # the config train_baseline will build from these keywords
                 from training.baseline_config import baseline_config
 
@@ -297,7 +297,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=None,
                    help="seeds the networks, noise and training episodes (default: 0; with --resume, the run's)")
     p.add_argument("--preset", default=None,
-                   help="tuned (the switches that pay) or paper (plain DDPG); default tuned, or the recipe's")
+                   help="tuned (the switches that pay, with the full-knowledge teacher), reward (those switches "
+                        "without the teacher) or paper (plain DDPG); default tuned, or the recipe's")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a TrainConfig field, e.g. --set twin_critics=false --set hidden=[128,128]")
     p.add_argument("--out", default=None, help="run folder (default: runs/train-<algo>-<scene>-seed<seed>)")

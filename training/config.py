@@ -24,6 +24,7 @@ from typing import Any
 
 from deck_sim import agents
 from deck_sim.evaluation import TRAIN_SEED_BASE
+from deck_sim.policies.regimes import config_regime
 
 ALGOS = agents.names(trainer="ddpg")
 """The agents ``training.ddpg`` trains (``deck_sim.agents``); the others go through ``training.baselines``."""
@@ -287,6 +288,11 @@ class TrainConfig:
     """Free-form notes stored with the run (e.g. the preset's name); not read by the trainer."""
 
     @property
+    def regime(self) -> str:
+        """What the run learns from (``deck_sim.policies.regimes``): ``reward`` unless a teaching field is on."""
+        return config_regime(self.to_dict())
+
+    @property
     def predictor(self) -> str:
         """The predictor filling the observation: ``mpc`` for MDDPG, ``none`` for DDPG."""
         return "mpc" if self.algo == "mddpg" else "none"
@@ -363,16 +369,21 @@ class TrainConfig:
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """The inverse of ``to_dict``: each value checked against its field's type (integers are accepted for
         floats, lists for tuples); an unknown field or a value of the wrong type raises ``ConfigError``."""
+        d = dict(d)
+        stated = d.pop("regime", None)  # (``save`` records it beside the fields; it follows from them)
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
             raise ConfigError(f"unknown training config field(s): {', '.join(unknown)}")
         hints = typing.get_type_hints(cls)
-        return cls(**{name: field_value(name, value, hints[name]) for name, value in d.items()}).validate()
+        config = cls(**{name: field_value(name, value, hints[name]) for name, value in d.items()}).validate()
+        if stated is not None and stated != config.regime:
+            raise ConfigError(f"regime: the config says {stated!r}, but its fields make {config.regime!r}")
+        return config
 
     def save(self, path: str | Path) -> None:
-        """Write the config as JSON."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
+        """Write the config as JSON, with its ``regime``."""
+        Path(path).write_text(json.dumps({**self.to_dict(), "regime": self.regime}, indent=2, sort_keys=True) + "\n")
 
     @classmethod
     def load(cls, path: str | Path) -> TrainConfig:
@@ -405,11 +416,25 @@ PRESETS: dict[str, dict[str, Any]] = {
         "reward_scale": 0.1,
         "noise_sigma": 0.1,
     },
+    # the tuned recipe's learning switches without its teacher: learns from the reward alone (regime ``reward``)
+    "reward": {
+        "obs_norm": True,
+        "twin_critics": True,
+        "target_noise": 0.2,
+        "policy_delay": 2,
+        "num_envs": 8,
+        "env_worker": True,
+        "updates_per_step": 0.25,
+        "hidden": (400, 300),
+        "reward_scale": 0.1,
+        "noise_sigma": 0.1,
+    },
 }
 
 
 def make_config(preset: str = "tuned", **fields: Any) -> TrainConfig:
-    """A validated ``TrainConfig`` from a preset (``paper`` or ``tuned``) with ``fields`` overriding it."""
+    """A validated ``TrainConfig`` from a preset (``paper``, ``tuned`` or ``reward``) with ``fields`` overriding
+    it."""
     if preset not in PRESETS:
         raise ConfigError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
     values = {**PRESETS[preset], **fields}
@@ -443,6 +468,8 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "close": {"scene_overrides": {"episode__near_steps": 4, "episode__near_obstacles": True}},
     "body": {"teacher_body": True},
     "dagger": {"dagger_steps": 40_000},
+    "her": {"her_ratio": 0.8},
+    "nstep": {"n_step": 3},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -460,20 +487,23 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 ``close``: the near field of ``near`` and, in it, every obstacle's nearest point at that scale,
 ``episode.near_obstacles``; ``body``: the teacher checks the agent's whole body on the way it will really go,
 ``teacher_body``; ``dagger``: after the final fit, the fitted actor drives 40,000 more steps, greedy and without
-updates, the planner labels them and the fit is made again, ``dagger_steps``). Several
-switches join with ``+``: ``tuned-mddpg-with-data+size``."""
+updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
+the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``). Several switches join with ``+``:
+``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 
 def arm_config(
     arm: str, scene: str, steps: int, seed: int, eval_every: int = 5_000, eval_episodes: int = 50
 ) -> TrainConfig:
     """The config of a named recipe, as ``benchmarks/learning.py`` and ``scripts/train_shipped.py`` run them:
-    ``<paper|tuned>-<ddpg|mddpg>``, ``tuned-<algo>-no-<switch>`` (a switch of ``ABLATIONS`` turned off) or
+    ``<paper|tuned|reward>-<ddpg|mddpg>``, ``tuned-<algo>-no-<switch>`` (a switch of ``ABLATIONS`` turned off) or
     ``<preset>-<algo>-with-<switch>`` (one of ``ADDITIONS`` added), with held-out evaluations (and checkpoints)
     every ``eval_every`` steps."""
     parts = arm.split("-")
     if len(parts) < 2 or parts[0] not in PRESETS or parts[1] not in ALGOS:
-        raise ConfigError(f"unknown recipe {arm!r}: expected <paper|tuned>-<ddpg|mddpg>[-no-<switch>|-with-<switch>]")
+        raise ConfigError(
+            f"unknown recipe {arm!r}: expected <{'|'.join(PRESETS)}>-<ddpg|mddpg>[-no-<switch>|-with-<switch>]"
+        )
     fields: dict[str, Any] = {}
     if len(parts) > 2:
         table = {"no": ABLATIONS, "with": ADDITIONS}.get(parts[2])

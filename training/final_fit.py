@@ -49,6 +49,7 @@ def actor_meta(
         "observation_shapes": {k: list(v) for k, v in layout.shapes.items()},
         "trained_steps": int(step),
         "polished": bool(polished),
+        "regime": config.regime,
         "config": config.to_dict(),
         "deck_sim_version": deck_sim.__version__,
         "git_commit": commit,
