@@ -62,7 +62,7 @@ def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
     script = _train_shipped()
     planned = script.run_config(scene, algo, script.default_steps(scene, algo), seed, {})
     if isinstance(planned, TrainConfig):
-        assert printed == json.loads(json.dumps(planned.to_dict()))
+        assert printed == json.loads(json.dumps({**planned.to_dict(), "regime": planned.regime}))
         assert printed["extra"]["recipe"] == scene
     else:  # the keywords of train_baseline, as the config it builds from them
         from training.baseline_config import baseline_config
