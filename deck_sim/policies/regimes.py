@@ -5,14 +5,15 @@ table:
 
 - ``reward``: reinforcement learning from the scene's reward alone (paper eq. 10-16): no demonstrations, no planner
   labels, no cloning term, no final fit. The paper's protocol.
-- ``planner``: also learns from a planner that sees only what the agent's observation holds (``TrainConfig.teacher``
-  ``astar`` or ``mpc``: the classical planners of ``deck_sim.control.planners`` over the MPC forecast), through
-  demonstrations, labels, a cloning term or a final fit.
-- ``oracle-teacher``: learns from the full-knowledge scripted planner (``teacher = "scripted"``), which sees every
-  obstacle's exact footprint and the movers' true future.
+- ``planner``: also learns from a planner that sees only what the agent's observation holds. No teacher of this
+  regime is built in yet; an actor file may state it (its record's ``regime``).
+- ``oracle-teacher``: also learns from the scripted planner (``TrainConfig``'s teaching fields), which reads the
+  task's full state (``Navigate.planner_view``: every obstacle's exact footprint and heading, the aircraft's body
+  and limits) and plans around the MPC forecast (``training.envs.TEACHER_PREDICTOR``), through demonstrations,
+  labels, a cloning term or a final fit.
 
-A config teaches when any of its teaching fields is on (``TEACHING_FIELDS``); the teacher then decides between the
-last two. Numpy and the standard library only: reading a regime needs no torch.
+A config teaches when any of its teaching fields is on (``TEACHING_FIELDS``), and its teacher is the scripted planner.
+Numpy and the standard library only: reading a regime needs no torch.
 """
 
 from __future__ import annotations
@@ -26,13 +27,9 @@ REGIMES = ("reward", "planner", "oracle-teacher")
 REGIME_TEXT = {
     "reward": "the reward alone",
     "planner": "the labels of a planner that sees what the agent sees",
-    "oracle-teacher": "the full-knowledge planner's labels",
+    "oracle-teacher": "the labels of the scripted planner, which reads the task's full state",
 }
 """What each regime means, for tables and messages."""
-
-TEACHERS = {"scripted": "oracle-teacher", "astar": "planner", "mpc": "planner"}
-"""The planners that can teach (``TrainConfig.teacher``) and the regime each makes: the full-knowledge scripted
-planner, or a classical planner that reads only what the agent's observation holds."""
 
 TEACHING_FIELDS = (
     "demo_episodes",
@@ -48,16 +45,10 @@ cloning fit and its DAgger round."""
 
 
 def config_regime(config: Mapping[str, Any]) -> str:
-    """The regime of a training config given as a mapping (``TrainConfig.to_dict()`` or a run's ``config.json``).
-
-    Raises:
-        ValueError: the config names a teacher that is not one of ``TEACHERS``.
-    """
-    teacher = config.get("teacher", "scripted")
-    if teacher not in TEACHERS:
-        raise ValueError(f"teacher {teacher!r} is not one of {', '.join(TEACHERS)}")
+    """The regime of a training config given as a mapping (``TrainConfig.to_dict()`` or a run's ``config.json``):
+    ``oracle-teacher`` if a teaching field is on, else ``reward``."""
     taught = any(bool(config.get(name) or 0) for name in TEACHING_FIELDS)
-    return TEACHERS[teacher] if taught else "reward"
+    return "oracle-teacher" if taught else "reward"
 
 
 def actor_regime(meta: Mapping[str, Any]) -> str | None:
@@ -76,10 +67,7 @@ def actor_regime(meta: Mapping[str, Any]) -> str | None:
     if isinstance(config, Mapping):
         if meta.get("algo") in ("dqn", "a2c"):  # stable-baselines3 learns from the environment's reward alone
             return "reward"
-        try:
-            return config_regime(config)
-        except ValueError:
-            return None
+        return config_regime(config)
     return None
 
 
