@@ -137,7 +137,7 @@ class MoverDriver:
                 ctrl += velocity[i]
         self._d.ctrl[self._ctrl_flat] = ctrl
 
-    def rescue(self, physics: mjcf.Physics, lost: np.ndarray, st: dict[str, np.ndarray]) -> int:
+    def rescue(self, physics: mjcf.Physics, lost: list[int], st: dict[str, np.ndarray]) -> int:
         """Put the movers ``lost`` (indices) that left the surface (pushed off in a crash) back at rest on their
         next spot, to dwell there and leave as usual; returns how many.
 
