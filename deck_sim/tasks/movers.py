@@ -109,7 +109,7 @@ class MoverDriver:
         first, as ``FusedStepper.read_state`` gives it) and write the movers' controls."""
         if not self._movers:
             return
-        cmd = self._behaviour.command(
+        speed, yaw_rate, velocity = self._behaviour.command_lists(
             t,
             self._period,
             st["xy"][1:],
@@ -118,7 +118,6 @@ class MoverDriver:
             st["xy"][0],
             float(st["yaw"][0]),
         )
-        speed, yaw_rate = cmd.speed.tolist(), cmd.yaw_rate.tolist()
         rows = self._rows
         ctrl: list[float] = []  # in the order of ``_ctrl_flat``
         if rows["tractor"]:
@@ -132,7 +131,6 @@ class MoverDriver:
                 ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[1 + i], self._limits)
                 ctrl += (ac.steer, ac.thrust, ac.brake, ac.brake)
         if rows["pedestrian"]:
-            velocity = cmd.velocity.tolist()
             for i in rows["pedestrian"]:
                 ctrl += velocity[i]
         self._d.ctrl[self._ctrl_flat] = ctrl
