@@ -15,7 +15,7 @@ Phases (own time, callees excluded):
     tracker         the agent's tracking controller (``control.tracking``)
     task hooks      the rest of ``Navigate.before_step`` / ``after_step`` (state shifts, bookkeeping)
     movers          ``MoverDriver.command`` around the behaviour: the actuator commands
-    behaviour       ``MoverBehaviour.command`` (``behaviour.py``), yield tests included
+    behaviour       ``MoverBehaviour.command_lists`` (``behaviour.py``), yield tests included
     routes          ``MoverBehaviour._depart``: a mover's next spot and its route (``geometry.VisibilityGraph``)
     mj_step         every raw ``mujoco.mj_step`` call: the fused substeps and composer's last one
     substeps        ``FusedStepper.substeps`` around its ``mj_step`` calls (sensor flags, warning counts)
@@ -151,6 +151,7 @@ def instrument(timer: PhaseTimer) -> None:
     timer.patch(navigate.Navigate, "after_step", "task hooks")
     timer.patch(movers.MoverDriver, "command", "movers")
     timer.patch(MoverBehaviour, "command", "behaviour")
+    timer.patch(MoverBehaviour, "command_lists", "behaviour")
     timer.patch(MoverBehaviour, "_depart", "routes")
     fused = physics_step.FusedStepper
     for name, phase in (

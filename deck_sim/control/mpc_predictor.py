@@ -300,9 +300,10 @@ class MPCPredictor:
 
         # one reduction on the common path (a sum of finite values that overflows only sends it the long way)
         if math.isfinite(pred.sum() + mem_new.sum()):
-            bad = np.zeros(len(pred), dtype=bool)
-        else:
-            bad = ~(np.isfinite(pred).all(axis=(1, 2)) & np.isfinite(mem_new).all(axis=1))
+            self._mem = mem_new
+            self.last_info = info
+            return Prediction(pred, np.zeros(len(pred), dtype=bool))
+        bad = ~(np.isfinite(pred).all(axis=(1, 2)) & np.isfinite(mem_new).all(axis=1))
         if bad.any():
             vel = least_squares_velocity(positions[bad], dt, 4)
             pred[bad] = constant_velocity_rollout(positions[bad][:, -1, :], vel, dt, self.horizon)

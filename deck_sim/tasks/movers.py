@@ -16,6 +16,7 @@ from deck_sim.entities import Aircraft, Pedestrian, Tractor
 from deck_sim.geometry import Footprints, VisibilityGraph
 from deck_sim.scenes import SceneSpec
 from deck_sim.tasks.layout import Layout, yaw_quat
+from deck_sim.tasks.physics_step import as_slice
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +69,8 @@ class MoverDriver:
         mover_ctrl = {k: (np.array(v, dtype=int) if v else np.zeros((0, 2), dtype=int)) for k, v in ctrl.items()}
         # every mover's controls are written in one assignment: tractors, aircraft, pedestrians
         self._rows = groups
-        self._ctrl_flat = np.concatenate([mover_ctrl[k].ravel() for k in groups]).astype(int)
+        self._ctrl_flat = as_slice(np.concatenate([mover_ctrl[k].ravel() for k in groups]).astype(int))
+        self._ctrl = self._d.ctrl  # (a view: MuJoCo's array, written in place)
         # controller constants come from the compiled model, not from copies of the XML's numbers
         taxiing = [mv for mv in movers if isinstance(mv, Aircraft)]
         if taxiing:
@@ -133,7 +135,7 @@ class MoverDriver:
         if rows["pedestrian"]:
             for i in rows["pedestrian"]:
                 ctrl += velocity[i]
-        self._d.ctrl[self._ctrl_flat] = ctrl
+        self._ctrl[self._ctrl_flat] = ctrl
 
     def rescue(self, physics: mjcf.Physics, lost: list[int], st: dict[str, np.ndarray]) -> int:
         """Put the movers ``lost`` (indices) that left the surface (pushed off in a crash) back at rest on their

@@ -42,7 +42,7 @@ from deck_sim.tasks.actions import InvalidActionError, checked_action
 from deck_sim.tasks.layout import Layout, LayoutError, sample_layout, static_footprints, yaw_quat
 from deck_sim.tasks.movers import MoverDriver
 from deck_sim.tasks.observation import ObservationConfig, build_observation, observation_shapes
-from deck_sim.tasks.physics_step import Clearances, FusedStepper
+from deck_sim.tasks.physics_step import Clearances, FusedStepper, as_slice
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
 
 __all__ = ["InvalidActionError", "Layout", "LayoutError", "Navigate"]
@@ -289,7 +289,7 @@ class Navigate(composer.Task):
             self._n_sub,
             self.spec.episode.collision_checks,
         )
-        self._ctrl_agent = np.array(physics.bind(list(self._agent.actuators)).element_id)
+        self._ctrl_agent = as_slice(physics.bind(list(self._agent.actuators)).element_id)
         # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
             self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))

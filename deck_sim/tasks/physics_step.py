@@ -36,6 +36,15 @@ RUNAWAY_FACTOR = 10.0
 (``scenes.arena_facts.vehicle_top_speeds``) has run away: the physics diverged, whether MuJoCo warned or not."""
 
 
+def as_slice(ids: np.ndarray) -> slice | np.ndarray:
+    """Indices ``ids`` as a slice where they are consecutive and increasing (numpy writes through a slice with
+    less work than through an index array, the same values), else ``ids`` themselves."""
+    ids = np.asarray(ids, dtype=int)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
+
 class FusedStepper:
     """The compiled model's index tables for stepping and reading the vehicles, and the contact bookkeeping.
 
