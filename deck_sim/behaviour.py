@@ -295,15 +295,16 @@ class MoverBehaviour:
         waypoint, route_last, dwell_until = self.waypoint.tolist(), self.route_last.tolist(), self.dwell_until.tolist()
         still, yielding, give_up = self.still_since.tolist(), self.yielding.tolist(), self.give_up.tolist()
         events = []
+        stuck_time, arrive_tol, waypoint_tol = p.stuck_time, p.arrive_tolerance, p.waypoint_tolerance
         for i in range(n):
             drv, last_wp = driving[i], waypoint[i] >= route_last[i]
             if spd[i] > 0.2 or not drv:  # moving, or not driving
                 still[i] = nan
             elif still[i] != still[i]:  # just stopped while driving
                 still[i] = t
-            stuck = (drv and t - still[i] > p.stuck_time and not yielding[i]) or give_up[i]
+            stuck = (drv and t - still[i] > stuck_time and not yielding[i]) or give_up[i]
             if drv:
-                event = dist[i] < p.arrive_tolerance and spd[i] < 0.6 if last_wp else dist[i] < p.waypoint_tolerance
+                event = dist[i] < arrive_tol and spd[i] < 0.6 if last_wp else dist[i] < waypoint_tol
             else:
                 event = t >= dwell_until[i]
             if event or stuck:
