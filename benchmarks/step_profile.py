@@ -3,8 +3,9 @@
 Every hook of one ``env.step`` is wrapped with ``time.perf_counter`` (nested timers: each phase's own time, its
 callees' subtracted) and the steps of a seeded, forward-biased random policy (as ``step_speed.py``) are timed;
 resets are not counted. Prints, per scene, the microseconds per control step of every phase and its share of the
-step, the step's total (instrumented and, from a second environment in the same run, uninstrumented) and the raw
-``mj_step`` part, with the machine and the load average. Single-threaded (OMP/MKL threads pinned to 1).
+step, the step's total (instrumented and, from a second environment in the same run, uninstrumented), the time
+above raw ``mj_step`` and the Python's part of it (all but the CasADi Function), per step, with the machine and the
+load average. Single-threaded (OMP/MKL threads pinned to 1).
 
     python benchmarks/step_profile.py [--scenes deck1,deck2,square] [--steps 600] [--predictor mpc]
 
@@ -205,8 +206,9 @@ def drive(env: Any, steps: int, seed: int, stepped: Callable[[], None] = lambda:
 
 
 def profile_scene(name: str, steps: int, predictor: str, seed: int = 0) -> dict[str, Any]:
-    """Own time per control step of every phase (s, mean and median over the steps), the instrumented and plain
-    step times (s), substeps."""
+    """Own time per control step of every phase (s, mean and median over the steps), the time above raw
+    ``mj_step`` and the Python's (above it, less the CasADi Function's; mean and median, s), the instrumented and
+    plain step times (s), substeps."""
     timer = PhaseTimer()
     plain = deck_sim.load(name, seed=seed, episode__predictor=predictor)
     instrument(timer)
@@ -218,7 +220,11 @@ def profile_scene(name: str, steps: int, predictor: str, seed: int = 0) -> dict[
     untimed = drive(plain, steps, seed)
     measured = timer.steps[50:]
     phases = sorted({k for step in measured for k in step})
+    above = [sum(step.values()) - step.get("mj_step", 0.0) for step in measured]
+    python = [a - step.get("casadi", 0.0) for a, step in zip(above, measured, strict=True)]
     return {
+        "above": (float(np.mean(above)), float(np.median(above))),
+        "python": (float(np.mean(python)), float(np.median(python))),
         "mean": {k: float(np.mean([step.get(k, 0.0) for step in measured])) for k in phases},
         "median": {k: float(np.median([step.get(k, 0.0) for step in measured])) for k in phases},
         "timed": float(np.mean(timed)),
@@ -248,8 +254,9 @@ def main() -> None:
         for phase in PHASES:
             if phase in mean:
                 print(f"  {phase:14s} {mean[phase] * 1e6:8.1f} {mean[phase] / total:6.1%} {median[phase] * 1e6:10.1f}")
-        above = total - mean.get("mj_step", 0.0)
-        print(f"  {'all':14s} {total * 1e6:8.1f}  above mj_step {above * 1e6:.1f} us")
+        print(f"  {'all':14s} {total * 1e6:8.1f}")
+        for label, key in (("above mj_step", "above"), ("Python", "python")):
+            print(f"  {label:14s} {r[key][0] * 1e6:8.1f} {r[key][0] / total:6.1%} {r[key][1] * 1e6:10.1f}")
 
 
 if __name__ == "__main__":
