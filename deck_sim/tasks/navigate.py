@@ -524,8 +524,8 @@ class Navigate(composer.Task):
         )
 
     def _update_info(self, physics: mjcf.Physics) -> None:
-        st = self._state
-        self._fallbacks_total += self._prediction.n_fallbacks
+        st, fallbacks = self._state, self._prediction.n_fallbacks
+        self._fallbacks_total += fallbacks
         self.last_info = {
             "time": float(self._d.time),
             "position": st["xy"][0].copy(),  # (copies: a caller may write to what it is given)
@@ -539,7 +539,7 @@ class Navigate(composer.Task):
             "left_surface": bool(self._off_surface),
             "diverged": bool(self._diverged),
             "predictor": self._predictor.name,
-            "predictor_fallbacks": int(self._prediction.n_fallbacks),
+            "predictor_fallbacks": fallbacks,
             "predictor_fallbacks_total": int(self._fallbacks_total),
             "movers_rescued": int(self._rescued),
             "mover_positions": st["xy"][1:].copy(),
