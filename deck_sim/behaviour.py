@@ -12,7 +12,7 @@ waited on the agent longer than ``max_yield_time`` heads for another spot.
 The behaviour only *commands*: it returns desired velocities once per control step and the vehicles' actuators
 produce the motion, so accelerations and turn rates are physical. Randomness comes only from the generator
 passed to ``reset``. Numpy and ``math`` only; the task feeds it measured positions, headings and speeds. The
-per-step ``command`` is the control step's hot path: with 5-13 movers numpy's cost per call outweighs its work,
+per-step ``command_lists`` is the control step's hot path: with 5-13 movers numpy's cost per call outweighs its work,
 so it runs on plain Python floats and looks only at the pairs of movers near enough to matter.
 """
 
@@ -169,7 +169,7 @@ class MoverBehaviour:
         brake_max = self._agent_brake_vmax**2 * self._agent_brake_gain
         near = np.hypot(self._agent_reach[:, 0] + brake_max + extent, self._agent_width[:, 0] + extent) + offset
         self._agent_near_sq = near * near
-        # the hot path (``command``) works on plain Python floats: its tables as nested lists
+        # the hot path (``command_lists``) works on plain Python floats: its tables as nested lists
         self._yield_reach_l = self._yield_reach.tolist()
         self._contact_reach_l = self._contact_reach.tolist()
         self._yield_width_l = self._yield_width.tolist()
