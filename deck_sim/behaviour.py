@@ -12,7 +12,7 @@ waited on the agent longer than ``max_yield_time`` heads for another spot.
 The behaviour only *commands*: it returns desired velocities once per control step and the vehicles' actuators
 produce the motion, so accelerations and turn rates are physical. Randomness comes only from the generator
 passed to ``reset``. Numpy and ``math`` only; the task feeds it measured positions, headings and speeds. The
-per-step ``command`` is the control step's hot path: with 5-13 movers numpy's cost per call outweighs its work,
+per-step ``command_lists`` is the control step's hot path: with 5-13 movers numpy's cost per call outweighs its work,
 so it runs on plain Python floats and looks only at the pairs of movers near enough to matter.
 """
 
@@ -27,16 +27,6 @@ import numpy as np
 from deck_sim.geometry import NoPathError, VisibilityGraph
 
 DRIVING, DWELLING = 0, 1
-
-
-def _minimum(a: float, b: float) -> float:
-    """``np.minimum`` of two floats: a NaN in either gives NaN."""
-    return a if a <= b or a != a else b
-
-
-def _maximum(a: float, b: float) -> float:
-    """``np.maximum`` of two floats: a NaN in either gives NaN."""
-    return a if a >= b or a != a else b
 
 
 @dataclass(frozen=True)
@@ -179,7 +169,7 @@ class MoverBehaviour:
         brake_max = self._agent_brake_vmax**2 * self._agent_brake_gain
         near = np.hypot(self._agent_reach[:, 0] + brake_max + extent, self._agent_width[:, 0] + extent) + offset
         self._agent_near_sq = near * near
-        # the hot path (``command``) works on plain Python floats: its tables as nested lists
+        # the hot path (``command_lists``) works on plain Python floats: its tables as nested lists
         self._yield_reach_l = self._yield_reach.tolist()
         self._contact_reach_l = self._contact_reach.tolist()
         self._yield_width_l = self._yield_width.tolist()
@@ -265,16 +255,21 @@ class MoverBehaviour:
 
     # -- the per-step command (the hot path: a few numpy calls over all movers, the rest plain Python floats) --
     def command(
-        self,
-        t: float,
-        dt: float,
-        positions: np.ndarray,
-        headings: np.ndarray,
-        speeds: np.ndarray,
-        agent_xy: np.ndarray,
-        agent_yaw: float = 0.0,
+        self, t: float, dt: float, positions: np.ndarray, headings: np.ndarray, speeds: np.ndarray,
+        agent_xy: np.ndarray, agent_yaw: float = 0.0,
     ) -> MoverCommands:
-        """Desired motion of every mover for the control step starting at time ``t`` (seconds).
+        """Desired motion of every mover for the control step starting at time ``t`` (seconds): ``command_lists``
+        (same arguments) as arrays."""
+        speed, yaw_rate, velocity = self.command_lists(t, dt, positions, headings, speeds, agent_xy, agent_yaw)
+        return MoverCommands(self.cmd_speed, np.array(yaw_rate), np.array(velocity).reshape(len(speed), 2))
+
+    def command_lists(
+        self, t: float, dt: float, positions: np.ndarray, headings: np.ndarray, speeds: np.ndarray,
+        agent_xy: np.ndarray, agent_yaw: float = 0.0,
+    ) -> tuple[list[float], list[float], list[tuple[float, float]]]:
+        """Desired motion of every mover for the control step starting at time ``t`` (seconds), as plain lists
+        (the task's per-step call): forward speed (n) m/s, turn rate (n) rad/s (zero for pedestrians) and
+        world-frame velocity (n pairs) m/s.
 
         Args:
             dt: the control period, seconds.
@@ -300,15 +295,16 @@ class MoverBehaviour:
         waypoint, route_last, dwell_until = self.waypoint.tolist(), self.route_last.tolist(), self.dwell_until.tolist()
         still, yielding, give_up = self.still_since.tolist(), self.yielding.tolist(), self.give_up.tolist()
         events = []
+        stuck_time, arrive_tol, waypoint_tol = p.stuck_time, p.arrive_tolerance, p.waypoint_tolerance
         for i in range(n):
             drv, last_wp = driving[i], waypoint[i] >= route_last[i]
             if spd[i] > 0.2 or not drv:  # moving, or not driving
                 still[i] = nan
             elif still[i] != still[i]:  # just stopped while driving
                 still[i] = t
-            stuck = (drv and t - still[i] > p.stuck_time and not yielding[i]) or give_up[i]
+            stuck = (drv and t - still[i] > stuck_time and not yielding[i]) or give_up[i]
             if drv:
-                event = dist[i] < p.arrive_tolerance and spd[i] < 0.6 if last_wp else dist[i] < p.waypoint_tolerance
+                event = dist[i] < arrive_tol and spd[i] < 0.6 if last_wp else dist[i] < waypoint_tol
             else:
                 event = t >= dwell_until[i]
             if event or stuck:
@@ -338,34 +334,46 @@ class MoverBehaviour:
         err_arr = (np.arctan2(to_aim[:, 1], to_aim[:, 0]) - headings + np.pi) % (2.0 * np.pi) - np.pi
         cos_err, err = np.cos(err_arr).tolist(), err_arr.tolist()
         cruise, rest, cmd_speed = self.cruise.tolist(), self.rest_after_aim.tolist(), self.cmd_speed.tolist()
-        holonomic = self._holonomic_l
         two_decel, half_dt = 2.0 * p.decel, 0.5 * dt
         accel_step, brake_step = p.accel * dt, p.decel * 2.0 * dt
-        gain, turn = p.heading_gain, p.turn_rate
-        v_out, w_out, vel_out = [0.0] * n, [0.0] * n, [(0.0, 0.0)] * n
-        for i in range(n):
+        gain, turn, neg_turn, sqrt = p.heading_gain, p.turn_rate, -p.turn_rate, math.sqrt
+        v_out: list[float] = []
+        w_out: list[float] = []
+        vel_out: list[tuple[float, float]] = []
+        # (the builtin max(a, b) is ``b if b > a else a`` and min(a, b) is ``b if b < a else a``: written out, the
+        # same floats, NaN and signed zeros included, without the calls)
+        for d_i, r_i, s_i, c_i, cs_i, ce_i, e_i, yld, drv, hol, (ax, ay) in zip(
+            dist, rest, spd, cruise, cmd_speed, cos_err, err, yielding, driving, self._holonomic_l, aim_xy, strict=True
+        ):
             # speed profile: cruise, braking to a stop at the spot (planned half a step early)
-            v_stop = math.sqrt(two_decel * max(dist[i] + rest[i] - spd[i] * half_dt - 0.3, 0.0))
-            v_des = 0.0 if yielding[i] else min(v_stop, cruise[i]) * driving[i]
+            x = d_i + r_i - s_i * half_dt - 0.3
+            v_stop = sqrt(two_decel * (0.0 if 0.0 > x else x))
+            v_des = 0.0 if yld else (c_i if c_i < v_stop else v_stop) * drv
             # wheeled movers slow down while the heading error is large; pedestrians walk straight at the aim
-            if holonomic[i]:
+            if hol:
                 align = 1.0
             else:
-                align = max(cos_err[i], 0.0)
+                align = 0.0 if 0.0 > ce_i else ce_i
                 align *= align
-            v = _minimum(v_des * align, cmd_speed[i] + accel_step)
-            v = _maximum(v, cmd_speed[i] - brake_step)
-            if yielding[i]:
+            v, bound = v_des * align, cs_i + accel_step
+            v = v if v <= bound or v != v else bound  # np.minimum: a NaN in either gives NaN
+            bound = cs_i - brake_step
+            v = v if v >= bound or v != v else bound  # np.maximum
+            if yld:
                 v = 0.0  # yielding brakes at once, as hard as the drive allows
-            v = max(v, 0.0)
-            v_out[i] = v
-            w = max(min(gain * err[i], turn), -turn)
-            w_out[i] = w * (driving[i] and not holonomic[i])
-            scale = v / max(dist[i], 1e-6)
-            vel_out[i] = (aim_xy[i][0] * scale, aim_xy[i][1] * scale)
-        v_cmd = np.array(v_out)
-        self.cmd_speed = v_cmd
-        return MoverCommands(speed=v_cmd, yaw_rate=np.array(w_out), velocity=np.array(vel_out).reshape(n, 2))
+            if 0.0 > v:
+                v = 0.0
+            v_out.append(v)
+            w = gain * e_i
+            if turn < w:
+                w = turn
+            if neg_turn > w:
+                w = neg_turn
+            w_out.append(w * (drv and not hol))
+            scale = v / (1e-6 if 1e-6 > d_i else d_i)
+            vel_out.append((ax * scale, ay * scale))
+        self.cmd_speed = np.array(v_out)
+        return v_out, w_out, vel_out
 
     def _must_yield(
         self,

@@ -41,6 +41,7 @@ and ``mpc_rollout``), ``mpc_codegen`` (C generation and its cache); this module 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -124,6 +125,8 @@ class MPCPredictor:
         self._spots = np.zeros((self.settings.max_spots, 2))
         self._mask = np.zeros(self.settings.max_spots)
         self._mem: np.ndarray | None = None
+        self._kinds = np.zeros(0, dtype=int)
+        self._pedestrian = self._no_force = np.zeros(0)
         k = min(4, self.settings.history)
         t = (np.arange(k) - 0.5 * (k - 1)) * self.settings.dt
         self._velocity_weights = t / np.dot(t, t)
@@ -155,6 +158,10 @@ class MPCPredictor:
         self._mask[...] = 0.0
         self._mask[:k] = 1.0
         self._mem = self._initial_memory(len(np.atleast_1d(kinds)))
+        # what ``predict_positions`` hands the Function: the kinds of this episode's movers, no forced spots
+        self._kinds = np.atleast_1d(np.asarray(kinds)).copy()
+        self._pedestrian = (self._kinds == _PEDESTRIAN).astype(np.float64)
+        self._no_force = np.full(len(self._kinds), -1.0)
 
     def _initial_memory(self, n: int) -> np.ndarray:
         """(n, memory_size) memory of movers never seen: no estimate, uniform belief, nothing excluded."""
@@ -216,6 +223,7 @@ class MPCPredictor:
         batch.memory[...] = mem
         batch.force[...] = force
         n = hist.shape[0]
+        hist = batch.history  # (the contiguous copy: einsum reads it the same way whatever the caller's strides)
         batch.others[:n] = hist[:, -1]
         # Others' velocities for the yield test: a line fit over the last 4 samples (as ConstantVelocity).
         np.einsum(
@@ -258,14 +266,47 @@ class MPCPredictor:
         force = np.full(n, -1.0)
         if known_spots is not None:
             force = np.ascontiguousarray(np.asarray(known_spots, dtype=np.float64).reshape(n))
+        return self._solve(tracks.positions, tracks.dt, hist, kinds, force)
+
+    def predict_positions(self, positions: np.ndarray, dt: float) -> Prediction:
+        """``predict`` for the movers given to the last ``reset``, from their positions (n, H, 2) m, oldest first,
+        ``dt`` seconds apart: the task's per-step call. The kinds are those of ``reset``; the input checks run
+        only when something is out of the ordinary (then ``predict`` names the problem). The same numbers as
+        ``predict``."""
+        s, mem = self.settings, self._mem
+        n = positions.shape[0]
+        if (
+            mem is None
+            or mem.shape[0] != n
+            or positions.dtype != np.float64
+            or positions.ndim != 3
+            or positions.shape[1] < s.history
+            or positions.shape[2] != 2
+            or abs(dt - s.dt) > 1e-9 * s.dt
+            or not math.isfinite(positions.sum())
+        ):
+            return self.predict(ObstacleTracks(dt=dt, positions=positions, kinds=self._kinds))
+        return self._solve(positions, dt, positions[:, -s.history :, :], self._pedestrian, self._no_force)
+
+    def _solve(
+        self, positions: np.ndarray, dt: float, hist: np.ndarray, kinds: np.ndarray, force: np.ndarray
+    ) -> Prediction:
+        """Evaluate the Function for checked inputs, fall back to constant velocity where it is not finite, and
+        keep the memory for the next step. ``positions`` (n, H, 2) the whole history, ``hist`` its last
+        ``settings.history`` samples, ``kinds`` (n,) 1.0 for pedestrians, ``force`` (n,) forced spots or -1."""
         t0 = time.perf_counter()
         pred, mem_new, info = self._evaluate(hist, kinds, self._mem, force)
         self.last_solve_time_s = time.perf_counter() - t0
 
+        # one reduction on the common path (a sum of finite values that overflows only sends it the long way)
+        if math.isfinite(pred.sum() + mem_new.sum()):
+            self._mem = mem_new
+            self.last_info = info
+            return Prediction(pred, np.zeros(len(pred), dtype=bool))
         bad = ~(np.isfinite(pred).all(axis=(1, 2)) & np.isfinite(mem_new).all(axis=1))
         if bad.any():
-            vel = least_squares_velocity(tracks.positions[bad], tracks.dt, 4)
-            pred[bad] = constant_velocity_rollout(tracks.current[bad], vel, tracks.dt, self.horizon)
+            vel = least_squares_velocity(positions[bad], dt, 4)
+            pred[bad] = constant_velocity_rollout(positions[bad][:, -1, :], vel, dt, self.horizon)
             mem_new[bad] = self._initial_memory(int(np.count_nonzero(bad)))
             self.fallback_count += int(np.count_nonzero(bad))
             log.debug("MPC predictor: constant-velocity fallback for movers %s", np.flatnonzero(bad).tolist())

@@ -16,6 +16,7 @@ from deck_sim.entities import Aircraft, Pedestrian, Tractor
 from deck_sim.geometry import Footprints, VisibilityGraph
 from deck_sim.scenes import SceneSpec
 from deck_sim.tasks.layout import Layout, yaw_quat
+from deck_sim.tasks.physics_step import as_slice
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +69,8 @@ class MoverDriver:
         mover_ctrl = {k: (np.array(v, dtype=int) if v else np.zeros((0, 2), dtype=int)) for k, v in ctrl.items()}
         # every mover's controls are written in one assignment: tractors, aircraft, pedestrians
         self._rows = groups
-        self._ctrl_flat = np.concatenate([mover_ctrl[k].ravel() for k in groups]).astype(int)
+        self._ctrl_flat = as_slice(np.concatenate([mover_ctrl[k].ravel() for k in groups]).astype(int))
+        self._ctrl = self._d.ctrl  # (a view: MuJoCo's array, written in place)
         # controller constants come from the compiled model, not from copies of the XML's numbers
         taxiing = [mv for mv in movers if isinstance(mv, Aircraft)]
         if taxiing:
@@ -109,7 +111,7 @@ class MoverDriver:
         first, as ``FusedStepper.read_state`` gives it) and write the movers' controls."""
         if not self._movers:
             return
-        cmd = self._behaviour.command(
+        speed, yaw_rate, velocity = self._behaviour.command_lists(
             t,
             self._period,
             st["xy"][1:],
@@ -118,7 +120,6 @@ class MoverDriver:
             st["xy"][0],
             float(st["yaw"][0]),
         )
-        speed, yaw_rate = cmd.speed.tolist(), cmd.yaw_rate.tolist()
         rows = self._rows
         ctrl: list[float] = []  # in the order of ``_ctrl_flat``
         if rows["tractor"]:
@@ -132,12 +133,11 @@ class MoverDriver:
                 ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[1 + i], self._limits)
                 ctrl += (ac.steer, ac.thrust, ac.brake, ac.brake)
         if rows["pedestrian"]:
-            velocity = cmd.velocity.tolist()
             for i in rows["pedestrian"]:
                 ctrl += velocity[i]
-        self._d.ctrl[self._ctrl_flat] = ctrl
+        self._ctrl[self._ctrl_flat] = ctrl
 
-    def rescue(self, physics: mjcf.Physics, lost: np.ndarray, st: dict[str, np.ndarray]) -> int:
+    def rescue(self, physics: mjcf.Physics, lost: list[int], st: dict[str, np.ndarray]) -> int:
         """Put the movers ``lost`` (indices) that left the surface (pushed off in a crash) back at rest on their
         next spot, to dwell there and leave as usual; returns how many.
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 from typing import Any
 
 import mujoco
@@ -41,7 +42,7 @@ from deck_sim.tasks.actions import InvalidActionError, checked_action
 from deck_sim.tasks.layout import Layout, LayoutError, sample_layout, static_footprints, yaw_quat
 from deck_sim.tasks.movers import MoverDriver
 from deck_sim.tasks.observation import ObservationConfig, build_observation, observation_shapes
-from deck_sim.tasks.physics_step import Clearances, FusedStepper
+from deck_sim.tasks.physics_step import Clearances, FusedStepper, as_slice
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
 
 __all__ = ["InvalidActionError", "Layout", "LayoutError", "Navigate"]
@@ -148,6 +149,10 @@ class Navigate(composer.Task):
 
         self._predictor = predictor or make_predictor(ep.predictor, ep.horizon, ep.control_period)
         self._horizon = int(self._predictor.horizon)
+        # the MPC predictor's per-step call without its input checks (``predict_positions``); its module is loaded
+        # whenever such a predictor exists (CasADi is imported on use only)
+        mpc = sys.modules.get("deck_sim.control.mpc_predictor")
+        self._mpc = mpc is not None and type(self._predictor) is mpc.MPCPredictor
         self._spot_xy = np.array([arena.site(s).xy for s in spec.movers.spots]).reshape(-1, 2)
         self._kinds = np.array(
             [ObstacleKind.PEDESTRIAN if isinstance(m, Pedestrian) else ObstacleKind.WHEELED for m in self._movers],
@@ -284,7 +289,7 @@ class Navigate(composer.Task):
             self._n_sub,
             self.spec.episode.collision_checks,
         )
-        self._ctrl_agent = np.array(physics.bind(list(self._agent.actuators)).element_id)
+        self._ctrl_agent = as_slice(physics.bind(list(self._agent.actuators)).element_id)
         # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
             self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))
@@ -388,12 +393,12 @@ class Navigate(composer.Task):
         """Read the new state, update histories, prediction, reward, termination and observation."""
         stepper = self._stepper
         stepper.check_contacts()
-        self._diverged = stepper.diverged()
         spec = self.spec
         st = stepper.read_state()
+        self._diverged = stepper.diverged(st["vel"])
         agent_on_surface, lost = stepper.surface(st["xy"])
-        if lost.any():  # rare: a crash pushed a mover off the surface
-            self._rescued += self._mover_driver.rescue(physics, np.flatnonzero(lost), st)
+        if lost:  # rare: a crash pushed a mover off the surface
+            self._rescued += self._mover_driver.rescue(physics, lost, st)
             st = stepper.read_state()
         self._state = st
         agent_xy = st["xy"][0]
@@ -464,6 +469,8 @@ class Navigate(composer.Task):
                 return p.predict(ObstacleTracks(dt=dt, positions=hist, kinds=self._kinds))
             velocity = least_squares_velocity(hist, dt, p.window)
             return Prediction(constant_velocity_rollout(hist[:, -1, :], velocity, dt, p.horizon), self._no_fallback)
+        if self._mpc:
+            return self._predictor.predict_positions(self._history, self.spec.episode.control_period)
         future = self.simulate_future(physics, self._horizon) if self._predictor.needs_future else None
         tracks = ObstacleTracks(
             dt=self.spec.episode.control_period, positions=self._history, kinds=self._kinds, future=future
@@ -517,8 +524,8 @@ class Navigate(composer.Task):
         )
 
     def _update_info(self, physics: mjcf.Physics) -> None:
-        st = self._state
-        self._fallbacks_total += self._prediction.n_fallbacks
+        st, fallbacks = self._state, self._prediction.n_fallbacks
+        self._fallbacks_total += fallbacks
         self.last_info = {
             "time": float(self._d.time),
             "position": st["xy"][0].copy(),  # (copies: a caller may write to what it is given)
@@ -532,7 +539,7 @@ class Navigate(composer.Task):
             "left_surface": bool(self._off_surface),
             "diverged": bool(self._diverged),
             "predictor": self._predictor.name,
-            "predictor_fallbacks": int(self._prediction.n_fallbacks),
+            "predictor_fallbacks": fallbacks,
             "predictor_fallbacks_total": int(self._fallbacks_total),
             "movers_rescued": int(self._rescued),
             "mover_positions": st["xy"][1:].copy(),

@@ -36,6 +36,15 @@ RUNAWAY_FACTOR = 10.0
 (``scenes.arena_facts.vehicle_top_speeds``) has run away: the physics diverged, whether MuJoCo warned or not."""
 
 
+def as_slice(ids: np.ndarray) -> slice | np.ndarray:
+    """Indices ``ids`` as a slice where they are consecutive and increasing (numpy writes through a slice with
+    less work than through an index array, the same values), else ``ids`` themselves."""
+    ids = np.asarray(ids, dtype=int)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
+
 class FusedStepper:
     """The compiled model's index tables for stepping and reading the vehicles, and the contact bookkeeping.
 
@@ -78,6 +87,12 @@ class FusedStepper:
                 vel_dofs.append([adr, adr + 1])
         self._vel_dofs = np.array(vel_dofs, dtype=int)
         self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
+        self._all_ped = bool(self._is_ped.all())
+        self._mover_ids = self.body_ids[1:]
+        # views of MuJoCo's arrays (they live as long as the data and are written in place by every step)
+        d = self._d
+        self._xpos, self._xmat, self._qpos, self._qvel = d.xpos, d.xmat, d.qpos, d.qvel
+        self._warning_number, self._sensordata = d.warning.number, d.sensordata
         top = vehicle_top_speeds()
         fastest = max(
             top["pedestrian" if isinstance(v, Pedestrian) else "aircraft" if isinstance(v, Aircraft) else "tractor"]
@@ -120,48 +135,52 @@ class FusedStepper:
     def read_state(self) -> dict[str, np.ndarray]:
         """Planar pose and velocity of the agent (row 0) and every mover: ``xy`` (k, 2) metres, ``yaw`` (k,)
         radians, ``vel`` (k, 2) m/s and ``forward_speed`` (k,) m/s; fresh arrays."""
-        d = self._d
-        xy = d.xpos[self.body_ids, :2]  # (fancy indexing copies)
-        xmat = d.xmat[self.body_ids]
+        xy = self._xpos[self.body_ids, :2]  # (fancy indexing copies)
+        xmat = self._xmat[self.body_ids]
         yaw = np.arctan2(xmat[:, 3], xmat[:, 0])
-        vel = d.qvel[self._vel_dofs]
-        fwd = vel[:, 0] * np.cos(yaw) + vel[:, 1] * np.sin(yaw)
-        # pedestrians have no body heading: their speed is the norm of their velocity
-        if self._any_ped:
-            fwd[self._is_ped] = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
+        vel = self._qvel[self._vel_dofs]
+        # pedestrians have no body heading: their speed is the norm of their velocity (every row's when all
+        # vehicles are pedestrians; the same call on the same arrays either way)
+        if self._all_ped:
+            fwd = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
+        else:
+            fwd = vel[:, 0] * np.cos(yaw) + vel[:, 1] * np.sin(yaw)
+            if self._any_ped:
+                fwd[self._is_ped] = np.hypot(vel[self._is_ped, 0], vel[self._is_ped, 1])
         return {"xy": xy, "yaw": yaw, "vel": vel, "forward_speed": fwd}
 
     def start_episode(self) -> None:
         """Forget the last contact and take MuJoCo's warning counts as they are now."""
         self.collided_with = None
         self._diverged = False
-        self._warnings_before = sum(self._d.warning.number[self._warning_ids].tolist())
+        self._warnings_before = sum(self._warning_number[self._warning_ids].tolist())
 
     def substeps(self) -> None:
         """Run the fused substeps (all but composer's last one), checking contacts after every chunk."""
-        d = self._d
-        self._warnings_before = sum(d.warning.number[self._warning_ids].tolist())  # compared in ``diverged``
+        m, d = self._m, self._d
+        self._warnings_before = sum(self._warning_number[self._warning_ids].tolist())  # compared in ``diverged``
         self.collided_with = None
         self._diverged = False
         # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
         # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
         # run mj_rnePostConstraint every step) leaves the trajectory and every value read bit-identical.
-        opt = self._m.opt
+        opt = m.opt
         flags = opt.disableflags
         for c in self._chunks:
             if c > 1:
                 opt.disableflags = flags | _NO_SENSORS
                 try:
-                    mujoco.mj_step(self._m, d, nstep=c - 1)
+                    mujoco.mj_step(m, d, nstep=c - 1)
                 finally:
                     opt.disableflags = flags
-            mujoco.mj_step(self._m, d, nstep=1)
-            self.check_contacts()
+            mujoco.mj_step(m, d, nstep=1)
+            if self.collided_with is None and self._sensordata[self._contact_adr] != 0.0:
+                self.check_contacts()
 
     def check_contacts(self) -> None:
         """Record the first obstacle the agent touches (contacts between bodies only; wheels touch the deck)."""
         d = self._d
-        if self.collided_with is not None or d.sensordata[self._contact_adr] == 0.0:
+        if self.collided_with is not None or self._sensordata[self._contact_adr] == 0.0:
             return
         geom = d.contact.geom[: d.ncon]
         a0, a1 = self._agent_geom[geom[:, 0]], self._agent_geom[geom[:, 1]]
@@ -171,31 +190,32 @@ class FusedStepper:
         if len(owners):
             self.collided_with = self.obstacle_names[int(owners[0])]
 
-    def diverged(self) -> bool:
+    def diverged(self, vel: np.ndarray) -> bool:
         """Whether the physics diverged over the control step, composer's substep included: MuJoCo warned (and
         reset the state) after ``substeps`` began, a position is not finite, or a vehicle moves faster than
-        ``runaway_speed`` (a timestep too coarse for the models can blow up without MuJoCo noticing)."""
-        d = self._d
-        warnings = sum(d.warning.number[self._warning_ids].tolist())
-        vel = d.qvel[self._vel_dofs]
+        ``runaway_speed`` (a timestep too coarse for the models can blow up without MuJoCo noticing). ``vel`` is
+        ``read_state()["vel"]`` of the state now."""
+        warnings = sum(self._warning_number[self._warning_ids].tolist())
         speed_sq = float((vel * vel).sum(axis=1).max())
-        self._diverged = (
-            warnings > self._warnings_before or not np.isfinite(d.qpos).all() or not speed_sq <= self._runaway_sq
-        )
+        qpos = self._qpos
+        # (one reduction on the common path: a sum that is not finite sends it to the element-wise test)
+        finite = math.isfinite(qpos.sum()) or bool(np.isfinite(qpos).all())
+        self._diverged = warnings > self._warnings_before or not finite or not speed_sq <= self._runaway_sq
         return self._diverged
 
-    def surface(self, xy: np.ndarray) -> tuple[bool, np.ndarray]:
-        """Whether the agent is on the surface, and which movers (n,) are lost: off the surface or fallen below
-        it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``.
+    def surface(self, xy: np.ndarray) -> tuple[bool, list[int]]:
+        """Whether the agent is on the surface, and the indices of the movers that are lost: off the surface or
+        fallen below it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``.
 
         After a control step that ``diverged`` found diverged, no mover counts as lost: the state is MuJoCo's reset
         (every body back at the origin, piled on each other) or a blown-up one, the episode ends, and there is
         nothing to rescue (``MoverDriver.rescue`` would log every mover as pushed off the surface)."""
-        on_surface = self._arena.on_surface(xy)  # the agent, then every mover
+        on_surface = self._arena.on_surface(xy).tolist()  # the agent, then every mover
         if self._diverged:
-            return bool(on_surface[0]), np.zeros(len(self.body_ids) - 1, dtype=bool)
-        lost = ~on_surface[1:] | (self._d.xpos[self.body_ids[1:], 2] < -1.0)
-        return bool(on_surface[0]), lost
+            return on_surface[0], []
+        z = self._xpos[self._mover_ids, 2].tolist()
+        lost = [i for i, (on, zi) in enumerate(zip(on_surface[1:], z, strict=True)) if not on or zi < -1.0]
+        return on_surface[0], lost
 
 
 class Clearances:
@@ -226,31 +246,44 @@ class Clearances:
         """Every obstacle's footprint, the static ones first; the movers' rows hold the last call's poses."""
         self._n_static = len(statics)
         self._half, self._radius = self.footprints.half.tolist(), self.footprints.radius.tolist()
+        self._hx, self._hy = self.footprints.half[:, 0].copy(), self.footprints.half[:, 1].copy()
+        self._r = self.footprints.radius.copy()
         self._agent_radius = agent_radius
 
     def __call__(self, st: dict[str, np.ndarray]) -> np.ndarray:
         """Clearance (k,) from the agent's disc to every static obstacle and mover for the state ``st``
         (``FusedStepper.read_state``), metres.
 
-        ``Footprints.distance`` from one point, written out on plain floats (about 25 footprints: numpy's cost
-        per call outweighs its work); the cosines and sines still come from numpy. Equal to
-        ``self.footprints.distance(agent)[0] - radius`` to a few ulps (``math.hypot`` rounds differently), NaN
-        where it is NaN (the builtin ``max``/``min`` keep a NaN first argument, as numpy's do).
+        ``Footprints.distance`` from one point, element-wise in numpy except the corner distances, which come
+        from ``math.hypot`` (as ``_clearances_python``); equal to ``self.footprints.distance(agent)[0] - radius``
+        to a few ulps (``math.hypot`` rounds differently). A state that is not finite (a blown-up one) takes the
+        loop over plain floats instead, whose builtin ``max``/``min`` keep a NaN first argument only; with finite
+        numbers both give the same floats.
         """
-        fp, k = self.footprints, self._n_static
-        fp.centers[k:] = st["xy"][1:]  # movers' rows are updated in place (hot path)
+        fp, k, xy = self.footprints, self._n_static, st["xy"]
+        fp.centers[k:] = xy[1:]  # movers' rows are updated in place (hot path)
         fp.yaw[k:] = st["yaw"][1:]
-        px, py = st["xy"][0].tolist()
+        c, s = np.cos(fp.yaw), np.sin(fp.yaw)
+        if not math.isfinite(xy.sum() + fp.yaw.sum()):
+            return self._clearances_python(xy[0].tolist(), c.tolist(), s.tolist())
+        rel = xy[0] - fp.centers
+        rx, ry = rel[:, 0], rel[:, 1]
+        qx = np.abs(rx * c + ry * s) - self._hx
+        qy = np.abs(-rx * s + ry * c) - self._hy
+        outside = np.array(list(map(math.hypot, np.maximum(qx, 0.0).tolist(), np.maximum(qy, 0.0).tolist())))
+        out = outside + np.minimum(np.maximum(qx, qy), 0.0) - self._r - self._agent_radius
+        if math.isnan(out.sum()):  # (finite inputs whose differences overflow)
+            return self._clearances_python(xy[0].tolist(), c.tolist(), s.tolist())
+        return out
+
+    def _clearances_python(self, agent_xy: list[float], cos: list[float], sin: list[float]) -> np.ndarray:
+        """``__call__`` on plain floats, the footprints' rows already updated; ``cos`` and ``sin`` of their
+        yaws."""
+        fp = self.footprints
+        px, py = agent_xy
         agent_r, hypot = self._agent_radius, math.hypot
         out = []
-        for (cx, cy), (hx, hy), r, c, s in zip(
-            fp.centers.tolist(),
-            self._half,
-            self._radius,
-            np.cos(fp.yaw).tolist(),
-            np.sin(fp.yaw).tolist(),
-            strict=True,
-        ):
+        for (cx, cy), (hx, hy), r, c, s in zip(fp.centers.tolist(), self._half, self._radius, cos, sin, strict=True):
             rx, ry = px - cx, py - cy
             qx = abs(rx * c + ry * s) - hx
             qy = abs(-rx * s + ry * c) - hy
