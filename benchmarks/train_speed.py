@@ -72,6 +72,10 @@ def timed(cfg: TrainConfig, warmup: int, steps: int, **runner: object) -> float:
 
 def recipe_part(args: argparse.Namespace) -> None:
     variants = [(b, int(w)) for b in args.backends.split(",") for w in args.workers.split(",")]
+    skipped = [v for v in variants if v[0] == "ray" and v[1] == 0]
+    if skipped:
+        print("ray with 0 workers skipped: the ray backend acts in at least 1 worker (local 0 steps inline)")
+        variants = [v for v in variants if v not in skipped]
     if any(b == "ray" for b, _ in variants):
         import ray
 

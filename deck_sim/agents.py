@@ -25,12 +25,18 @@ class AgentInfo:
         summary: What it is, in a few words.
         trainer: For learned agents, what trains it: ``ddpg`` (``training.ddpg``) or ``sb3``
             (stable-baselines3 through ``training.baselines``); empty otherwise.
+        algo: For learned agents, the training algorithm (``TrainConfig.algo``, ``deck-sim train --algo``):
+            ``mddpg``, ``ddpg``, ``dqn`` or ``a2c``; empty: the agent's own name.
+        recipe: For learned agents, which recipe of a scene trains them: empty for ``training/recipes/<scene>.toml``,
+            else the suffix of ``<scene>-<recipe>.toml``.
     """
 
     name: str
     kind: str
     summary: str
     trainer: str = ""
+    algo: str = ""
+    recipe: str = ""
 
 
 AGENTS: dict[str, AgentInfo] = {
@@ -40,6 +46,9 @@ AGENTS: dict[str, AgentInfo] = {
         AgentInfo("ddpg", "learned", "the same DDPG without prediction", "ddpg"),
         AgentInfo("dqn", "learned", "DQN over 17 discrete displacements (stable-baselines3)", "sb3"),
         AgentInfo("a2c", "learned", "A2C (stable-baselines3)", "sb3"),
+        AgentInfo("mddpg-reward", "learned", "MDDPG learnt from the reward alone (the paper's protocol)", "ddpg",
+                  algo="mddpg", recipe="reward"),
+        AgentInfo("ddpg-reward", "learned", "DDPG learnt from the reward alone", "ddpg", algo="ddpg", recipe="reward"),
         AgentInfo("apf", "classical", "artificial potential field"),
         AgentInfo("astar", "classical", "A* over a visibility graph with the movers' predicted sweeps"),
         AgentInfo("mpc", "classical", "CasADi/IPOPT MPC along the static shortest path"),
@@ -64,7 +73,20 @@ def names(kind: str | None = None, trainer: str | None = None) -> tuple[str, ...
 
 
 LEARNED = names("learned")
-"""Agents trained by ``deck-sim train`` and shipped per scene in ``deck_sim/trained``."""
+"""Agents trained by ``deck-sim train`` and shipped per scene in ``deck_sim/trained`` (``<scene>_<name>.npz``)."""
+ALGOS = tuple(a for a in LEARNED if not AGENTS[a].algo)
+"""The training algorithms (``deck-sim train --algo``): the learned agents that are their own algorithm."""
+
+
+def training_algo(agent: str) -> str:
+    """The training algorithm of learned ``agent`` (one of ``ALGOS``)."""
+    return AGENTS[agent].algo or agent
+
+
+def recipe_name(agent: str, scene: str) -> str:
+    """The recipe (``training/recipes/<name>.toml``) that trains learned ``agent`` on ``scene``."""
+    suffix = AGENTS[agent].recipe
+    return f"{scene}-{suffix}" if suffix else scene
 CLASSICAL = names("classical")
 """Classical references; they plan around the forecast of ``deck_sim.policies.REFERENCE_PREDICTOR``."""
 ORACLES = names("oracle")

@@ -1,6 +1,6 @@
 """Train the policies shipped in ``deck_sim/trained/`` and measure them on held-out episodes.
 
-For each scene and agent (``--algos``, default all four learned agents of the paper):
+For each scene and agent (``--algos``, default every learned agent of ``deck_sim.agents``):
 
 - ``mddpg`` and ``ddpg``: one ``training.loop.Trainer`` run of the ``[ddpg]`` table of the scene's recipe,
   ``training/recipes/<scene>.toml`` (``training.recipes``), per seed of the recipe's ``seeds`` (or ``--seeds``),
@@ -8,6 +8,8 @@ For each scene and agent (``--algos``, default all four learned agents of the pa
   <seed>`` makes. DDPG is MDDPG without prediction (predictor ``none``), same recipe, seeds and budget. With
   several seeds the shipped file is an ensemble (``deck_sim.policies.EnsemblePolicy``): the seeds' actors acting
   by the mean of their actions.
+- ``mddpg-reward`` and ``ddpg-reward``: the same with the scene's reward-alone recipe,
+  ``training/recipes/<scene>-reward.toml``, in ``--out/<scene>-reward-<algo>-seed<seed>``.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
   ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
   (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
@@ -35,8 +37,8 @@ incrementally; each is shipped as soon as it is measured. Several copies may run
 Long work: run it in the background (``nohup nice -n 10 python scripts/train_shipped.py > train.log 2>&1 &``),
 never in tests.
 
-    python scripts/train_shipped.py [--scenes deck1,deck2,square] [--algos mddpg,ddpg,dqn,a2c] [--steps N]
-                                    [--seeds 0,1] [--episodes 200] [--redo | --evaluate-only]
+    python scripts/train_shipped.py [--scenes deck1,deck2,square] [--algos mddpg,ddpg,dqn,a2c,mddpg-reward,...]
+                                    [--steps N] [--seeds 0,1] [--episodes 200] [--redo | --evaluate-only]
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import deck_sim  # noqa: E402
-from deck_sim.agents import AGENTS, names  # noqa: E402
+from deck_sim.agents import AGENTS, names, recipe_name, training_algo  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
 from deck_sim.policies import (  # noqa: E402
     SHIPPED_ALGOS,
@@ -79,7 +81,8 @@ from training.recipes import load_recipe  # noqa: E402
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
 """The agents trained by ``training.ddpg`` (MDDPG, DDPG); the others by stable-baselines3."""
-LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C"}
+LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C",
+          "mddpg-reward": "MDDPG (reward alone)", "ddpg-reward": "DDPG (reward alone, no prediction)"}
 PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
 README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.py) -->", "<!-- shipped-table: end -->")
 """The project README's shipped-policies table lies between these two lines; ``write_readme`` rewrites it from
@@ -146,28 +149,29 @@ def ship(runs: list[Path], dest: Path) -> None:
 
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
-    """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives."""
-    return out / f"{scene}-{algo}-seed{seed}"
+    """Where the run behind ``deck_sim/trained/<scene>_<algo>.npz`` lives: ``<recipe>-<training algo>-seed<seed>``
+    (``deck1-mddpg-seed0``, ``deck1-reward-mddpg-seed0``)."""
+    return out / f"{recipe_name(algo, scene)}-{training_algo(algo)}-seed{seed}"
 
 
 def default_steps(scene: str, algo: str) -> int:
-    """Environment steps of one run of the scene's recipe for ``algo``."""
-    return load_recipe(scene).steps(algo)
+    """Environment steps of one run of the recipe of the shipped ``algo`` of ``scene``."""
+    return load_recipe(recipe_name(algo, scene)).steps(training_algo(algo))
 
 
 def default_seeds(scene: str, algo: str) -> tuple[int, ...]:
     """The training seeds behind the shipped ``algo`` of ``scene``: its recipe's."""
-    return load_recipe(scene).seeds(algo)
+    return load_recipe(recipe_name(algo, scene)).seeds(training_algo(algo))
 
 
 def run_config(scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> Any:
-    """What one run of the shipped ``algo`` of ``scene`` trains with: the recipe's ``TrainConfig`` (MDDPG, DDPG;
-    ``deck-sim train --recipe <scene> --algo <algo> --seed <seed> --print-config`` prints the same) or the keyword
-    arguments of ``train_baseline`` (DQN, A2C), ``steps`` and ``fields`` applied."""
-    recipe = load_recipe(scene)
+    """What one run of the shipped ``algo`` of ``scene`` trains with: its recipe's ``TrainConfig`` (MDDPG, DDPG;
+    ``deck-sim train --recipe <recipe> --algo <training algo> --seed <seed> --print-config`` prints the same) or the
+    keyword arguments of ``train_baseline`` (DQN, A2C), ``steps`` and ``fields`` applied."""
+    recipe, trained = load_recipe(recipe_name(algo, scene)), training_algo(algo)
     if algo in DDPG_ALGOS:
-        return recipe.config(algo, seed, **{**fields, "total_steps": steps})
-    return {"algo": algo, "scene": scene, "seed": seed, **recipe.baseline_kwargs(algo), "steps": steps}
+        return recipe.config(trained, seed, **{**fields, "total_steps": steps})
+    return {"algo": trained, "scene": scene, "seed": seed, **recipe.baseline_kwargs(trained), "steps": steps}
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
@@ -236,7 +240,8 @@ def read_report(path: Path) -> dict[str, dict[str, dict]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", default="deck1,deck2,square")
-    parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS), help="agents to ship (mddpg,ddpg,dqn,a2c)")
+    parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS),
+                        help=f"agents to ship (default all: {','.join(SHIPPED_ALGOS)})")
     parser.add_argument("--steps", type=int, default=None,
                         help="training steps for every agent (default: the scene's recipe)")
     parser.add_argument("--seeds", default=None,
@@ -327,7 +332,8 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
-            "recipe": f"training/recipes/{scene}.toml" if algo in DDPG_ALGOS else f"stable-baselines3 {algo}",
+            "recipe": (f"training/recipes/{recipe_name(algo, scene)}.toml" if algo in DDPG_ALGOS
+                       else f"stable-baselines3 {algo}"),
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
@@ -365,7 +371,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "",
         "Weights-only actors (`deck_sim.policies.LearnedPolicy`, numpy alone; `load_actor` reads them), written by",
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
-        "`training.loop.Trainer` runs of the recipe in the table (`training/recipes/<scene>.toml`; DDPG: the same",
+        "`training.loop.Trainer` runs of the recipe in the table (`training/recipes/<scene>.toml`, from the reward",
+        "alone `<scene>-reward.toml`; DDPG: the same",
         "agent, recipe, seeds and budget without the MPC prediction), one run per training seed; with several seeds",
         "the file holds each run's actor and acts by the mean of their actions (`deck_sim.policies.EnsemblePolicy`).",
         "DQN and A2C are stable-baselines3 runs",
@@ -386,7 +393,7 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
-        recipe = f"`training/recipes/{scene}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
+        recipe = f"`training/recipes/{recipe_name(algo, scene)}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
         actor = "final, fitted" if meta.get("polished", False) else f"best evaluation ({r['selected_at_step']} steps)"

@@ -132,7 +132,8 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
     from deck_sim.policies import SHIPPED_ALGOS, policy_overrides, shipped_policy_path
 
     agents = _shipped_agents()[scene]
-    assert set(agents) == set(SHIPPED_ALGOS)  # all four learned agents of the paper, measured and shipped
+    # all four learned agents of the paper, measured and shipped (and any other shipped agent of the registry)
+    assert {"mddpg", "ddpg", "dqn", "a2c"} <= set(agents) <= set(SHIPPED_ALGOS)
     for algo, record in agents.items():
         if algo == "mddpg":  # acts with the MPC forecast: test_training.py's shipped-policy test
             continue

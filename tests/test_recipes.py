@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from deck_sim.agents import recipe_name, training_algo
 from deck_sim.cli import main
 from deck_sim.policies import EnsemblePolicy, load_actor, shipped_policy_path
 from training.config import ConfigError, TrainConfig
@@ -30,10 +31,16 @@ def _without_notes(config: dict) -> dict:
     return {k: v for k, v in json.loads(json.dumps(config)).items() if k != "extra"}
 
 
-def test_every_shipped_scene_has_a_recipe():
-    assert recipe_names() == list(SCENES)
+def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe():
+    assert recipe_names() == sorted([*SCENES, *(f"{s}-reward" for s in SCENES)])
     for scene in SCENES:
-        assert load_recipe(scene).scene == scene
+        assert load_recipe(scene).scene == load_recipe(f"{scene}-reward").scene == scene
+        for agent in ("mddpg-reward", "ddpg-reward"):
+            assert recipe_name(agent, scene) == f"{scene}-reward"
+            config = load_recipe(recipe_name(agent, scene)).config(training_algo(agent), 2)
+            assert config.regime == "reward" and config.algo == agent.split("-")[0]
+            assert not (config.demo_episodes or config.bc_weight or config.expert_relabel or config.polish_epochs)
+        assert recipe_name("mddpg", scene) == scene and training_algo("mddpg") == "mddpg"
 
 
 @pytest.mark.parametrize("scene", SCENES)
@@ -55,15 +62,23 @@ def test_the_shipped_mddpg_and_ddpg_are_runs_of_their_recipe(scene):
         assert recipe.steps(algo) == 160_000
 
 
-@pytest.mark.parametrize(("scene", "algo", "seed"), [("deck1", "mddpg", 1), ("deck2", "ddpg", 0), ("square", "dqn", 0)])
+@pytest.mark.parametrize(
+    ("scene", "algo", "seed"),
+    [("deck1", "mddpg", 1), ("deck2", "ddpg", 0), ("square", "dqn", 0), ("deck1", "mddpg-reward", 2),
+     ("deck2", "ddpg-reward", 0)],
+)
 def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
-    assert main(["train", "--recipe", scene, "--algo", algo, "--seed", str(seed), "--print-config"]) == 0
+    recipe = recipe_name(algo, scene)
+    assert main(["train", "--recipe", recipe, "--algo", training_algo(algo), "--seed", str(seed),
+                 "--print-config"]) == 0
     printed = json.loads(capsys.readouterr().out)
     script = _train_shipped()
     planned = script.run_config(scene, algo, script.default_steps(scene, algo), seed, {})
+    assert script.run_folder(Path("runs"), scene, algo, seed) == Path(f"runs/{recipe}-{training_algo(algo)}-seed{seed}")
     if isinstance(planned, TrainConfig):
         assert printed == json.loads(json.dumps({**planned.to_dict(), "regime": planned.regime}))
-        assert printed["extra"]["recipe"] == scene
+        assert printed["extra"]["recipe"] == recipe
+        assert printed["regime"] == ("reward" if algo.endswith("-reward") else "oracle-teacher")
     else:  # the keywords of train_baseline, as the config it builds from them
         from training.baseline_config import baseline_config
 
@@ -82,7 +97,8 @@ def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(caps
         assert main(["train", "--recipe", "deck1", *clash, "--print-config"]) == 2
         assert f"drop {clash[0]}" in capsys.readouterr().err
     assert main(["train", "--recipe", "nowhere", "--print-config"]) == 2
-    assert "unknown recipe 'nowhere'; known recipes: deck1, deck2, square" in capsys.readouterr().err
+    assert ("unknown recipe 'nowhere'; known recipes: deck1, deck1-reward, deck2, deck2-reward, square, "
+            "square-reward") in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -102,3 +118,15 @@ def test_a_bad_recipe_file_is_refused_naming_the_problem(tmp_path, text, message
     path.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_recipe(path)
+
+
+def test_a_reward_alone_agent_that_is_not_shipped_is_refused_with_the_command_that_trains_it(capsys):
+    from deck_sim.policies import PolicyFileError
+
+    with pytest.raises(PolicyFileError, match="no shipped mddpg-reward policy for scene 'harbour'"):
+        shipped_policy_path("mddpg-reward", "harbour")
+    with pytest.raises(PolicyFileError, match="deck-sim train --recipe harbour-reward --algo mddpg"):
+        shipped_policy_path("mddpg-reward", "harbour")
+    with pytest.raises(SystemExit):  # a shipped agent's name, not a training algorithm
+        main(["train", "--algo", "mddpg-reward", "--print-config"])
+    assert "invalid choice: 'mddpg-reward'" in capsys.readouterr().err

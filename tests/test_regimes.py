@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from deck_sim.agents import LEARNED
+from deck_sim.agents import AGENTS, LEARNED
 from deck_sim.cli import main
 from deck_sim.policies import TRAINED_DIR, load_actor
 from deck_sim.policies.regimes import (
@@ -65,7 +65,10 @@ def test_every_shipped_actor_records_a_regime(algo):
     for scene in ("deck1", "deck2", "square"):
         path = TRAINED_DIR / f"{scene}_{algo}.npz"
         if path.exists():
-            assert actor_regime(load_actor(path).meta) in REGIMES
+            regime = actor_regime(load_actor(path).meta)
+            assert regime in REGIMES
+            if AGENTS[algo].recipe == "reward":  # the name says the regime
+                assert regime == "reward", (scene, algo)
 
 
 def test_deck_sim_run_says_what_a_learned_policy_learnt_from(tmp_path, capsys):

@@ -140,7 +140,7 @@ def _recorded_algo(out: Path) -> str | None:
         algo = json.loads((out / "config.json").read_text()).get("algo")
     except (OSError, ValueError, AttributeError):
         return None  # the resume names what is wrong with the file
-    return algo if algo in agents.LEARNED else None
+    return algo if algo in agents.ALGOS else None
 
 
 def _plan_run(args: argparse.Namespace, out: Path) -> tuple[Any, dict[str, Any] | None]:
@@ -287,11 +287,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the actor (actor.npz, actor_best.npz). Ctrl-C stops at a checkpoint; --resume continues exactly.",
     )
     p.epilog = config_fields_help()
-    p.add_argument("--algo", default=None, choices=agents.LEARNED,
+    p.add_argument("--algo", default=None, choices=agents.ALGOS,
                    help="the agent to train (default: mddpg; with --resume, the run's)")
     p.add_argument("--recipe", default=None,
-                   help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained) or a recipe "
-                        "TOML file; it sets the scene, the preset and every field the recipe names")
+                   help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained; deck1-reward, "
+                        "deck2-reward, square-reward: from the reward alone) or a recipe TOML file; it sets the "
+                        "scene, the preset and every field the recipe names")
     p.add_argument("--scene", default=None, help="scene name or TOML path (default: deck1, or the recipe's)")
     p.add_argument("--steps", type=int, default=None, help="environment steps (default: the recipe's or preset's)")
     p.add_argument("--seed", type=int, default=None,

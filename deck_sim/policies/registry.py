@@ -35,7 +35,9 @@ def shipped_policy_path(algo: str, scene: str) -> Path:
         shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
         raise PolicyFileError(
             f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); "
-            f"train one with deck-sim train --algo {algo} --scene {scene}, or pass an actor file"
+            f"train one with python scripts/train_shipped.py --scenes {scene} --algos {algo} (one seed: deck-sim "
+            f"train --recipe {agents.recipe_name(algo, scene)} --algo {agents.training_algo(algo)}), or pass an "
+            "actor file"
         )
     return path
 

@@ -1,4 +1,6 @@
-"""Training recipes as data: one TOML file per shipped recipe (``deck1.toml``, ``deck2.toml``, ``square.toml``).
+"""Training recipes as data: one TOML file per shipped recipe (``deck1.toml``, ``deck2.toml``, ``square.toml``:
+taught by the full-knowledge planner; ``deck1-reward.toml``, ``deck2-reward.toml``, ``square-reward.toml``: from
+the reward alone, the paper's protocol).
 
 A recipe names its scene and two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of ``training.config.PRESETS``,
 the training seeds, and any ``TrainConfig`` fields over the preset) and ``[sb3]`` for the DQN and A2C baselines
@@ -67,8 +69,8 @@ class Recipe:
 
 
 def _trainer(algo: str) -> str:
-    if algo not in agents.LEARNED:
-        raise ConfigError(f"algo: expected one of {', '.join(agents.LEARNED)}, got {algo!r}")
+    if algo not in agents.ALGOS:
+        raise ConfigError(f"algo: expected one of {', '.join(agents.ALGOS)}, got {algo!r}")
     return agents.AGENTS[algo].trainer
 
 
