@@ -93,7 +93,7 @@ class LineProgress:
     def _print(self) -> None:
         if self.disable:
             return
-        count = f"{self.n:g}" if self.total is None else f"{self.n:g}/{self.total:g}"
+        count = _count(self.n) if self.total is None else f"{_count(self.n)}/{_count(self.total)}"
         share = f" ({100 * self.n / self.total:.0f} %)" if self.total else ""
         line = f"{self.desc}: {count} {self.unit}{share} in {time.monotonic() - self._start:.0f} s"
         if self._postfix:
@@ -118,3 +118,8 @@ def _is_terminal(stream: TextIO) -> bool:
         return stream.isatty()
     except (AttributeError, ValueError):  # a closed or replaced stream
         return False
+
+
+def _count(x: float) -> str:
+    """A count as printed: whole numbers in full (``1000000``, not ``1e+06``), others to 6 significant digits."""
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
