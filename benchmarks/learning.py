@@ -10,8 +10,17 @@ arm, with the machine; plots success and mean episode reward against environment
                                   [--seeds 0] [--out runs/learning] [--plot docs/learning_deck1.png]
 
 Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
-tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. An arm whose
-run folder already holds a finished run is read back, not retrained (delete the folder to rerun it).
+tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. With ``--recipe
+NAME`` the arms are training algorithms (default ``mddpg,ddpg``) of that recipe file (``training.recipes``), with
+its steps, seeds and evaluations unless given, in ``--out/<recipe>-<algo>-seed<s>``: the folders of
+``scripts/train_shipped.py``, so one set of runs serves both. An arm whose run folder already holds a finished run
+is read back, not retrained (delete the folder to rerun it); one with a checkpoint is resumed. ``--no-train``
+reports the runs as they stand (an unfinished run by its latest evaluation) and trains nothing.
+
+Beside each arm's mean over seeds, the table gives the 95 % interval of its success over seeds (Student's t, clipped
+to 0-100 %), and
+for every pair of arms that differ only in ``mddpg`` against ``ddpg`` the difference of their success, seed by
+seed, with its 95 % interval over the seeds both finished (the prediction ablation).
 """
 
 from __future__ import annotations
@@ -30,8 +39,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.config import arm_config  # noqa: E402
+from deck_sim.metrics import mean_interval  # noqa: E402
+from training.config import ConfigError, arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
+from training.recipes import load_recipe  # noqa: E402
 
 
 def read_eval(run: Path) -> list[dict[str, float]]:
@@ -42,35 +53,59 @@ def read_eval(run: Path) -> list[dict[str, float]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scene", default="deck1")
-    parser.add_argument("--steps", type=int, default=40_000)
-    parser.add_argument("--arms", default="paper-ddpg,tuned-ddpg,tuned-mddpg")
-    parser.add_argument("--seeds", default="0", help="comma-separated training seeds")
-    parser.add_argument("--eval-every", type=int, default=5_000)
-    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--scene", default=None, help="the scene (default deck1, or the recipe's)")
+    parser.add_argument("--recipe", default=None, help="arms are training algorithms of this recipe file")
+    parser.add_argument("--steps", type=int, default=None, help="environment steps per run (default 40000, or "
+                        "the recipe's)")
+    parser.add_argument("--arms", default=None,
+                        help="comma-separated (default paper-ddpg,tuned-ddpg,tuned-mddpg; with --recipe mddpg,ddpg)")
+    parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 0, or the recipe's)")
+    parser.add_argument("--eval-every", type=int, default=None, help="default 5000, or the recipe's")
+    parser.add_argument("--eval-episodes", type=int, default=None, help="default 50, or the recipe's")
     parser.add_argument("--out", default="runs/learning")
+    parser.add_argument("--no-train", action="store_true", help="report the runs as they stand; train nothing")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
     args = parser.parse_args()
+    try:
+        recipe = load_recipe(args.recipe) if args.recipe else None
+    except ConfigError as err:
+        raise SystemExit(str(err)) from err
+    if recipe is not None and args.scene not in (None, recipe.scene):
+        raise SystemExit(f"--recipe {recipe.name} trains on {recipe.scene}; drop --scene {args.scene}")
+    scene = recipe.scene if recipe is not None else (args.scene or "deck1")
     print(machine(torch=torch.__version__))
-    arms = args.arms.split(",")
-    seeds = [int(s) for s in args.seeds.split(",")]
+    arms = (args.arms or ("mddpg,ddpg" if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
+    seeds = ([int(s) for s in args.seeds.split(",")] if args.seeds
+             else list(recipe.seeds(arms[0])) if recipe else [0])
     curves: dict[str, list[list[dict[str, float]]]] = {}
+    seeds_of: dict[str, list[int]] = {}
+    unfinished = []
     for arm in arms:
         for seed in seeds:
-            run = Path(args.out) / f"{args.scene}-{arm}-seed{seed}"
-            if not (run / "actor.npz").exists():
+            run = Path(args.out) / (f"{recipe.name}-{arm}-seed{seed}" if recipe else f"{scene}-{arm}-seed{seed}")
+            if not (run / "actor.npz").exists() and not args.no_train:
                 try:
-                    cfg = arm_config(arm, args.scene, args.steps, seed, args.eval_every, args.eval_episodes)
+                    cfg = run_config(recipe, arm, scene, seed, args)
                 except ValueError as err:
                     raise SystemExit(str(err)) from err
                 resume = (run / "checkpoint.pt").exists()
                 print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
                 Trainer(cfg, run, resume=resume).train()
+            if not (run / "eval.csv").exists() or not read_eval(run):
+                print(f"{run}: no evaluation yet, left out", flush=True)
+                continue
+            if not (run / "actor.npz").exists():
+                unfinished.append(f"{run.name} (at step {read_eval(run)[-1]['step']:.0f})")
             curves.setdefault(arm, []).append(read_eval(run))
+            seeds_of.setdefault(arm, []).append(seed)
 
-    print(f"\nscene {args.scene}; held-out evaluation: episodes of the seed-500 stream; last evaluation of each run")
-    print("| arm | seeds | steps | train time | eval episodes | success | collision | timeout | mean reward |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    name = f"recipe {recipe.name}" if recipe else f"scene {scene}"
+    print(f"\n{name}; held-out evaluation: episodes of the seed-500 stream; last evaluation of each run")
+    if unfinished:
+        print(f"unfinished runs, reported at their latest evaluation: {', '.join(unfinished)}")
+    print("| arm | seeds | steps | train time | eval episodes | success | success, 95 % over seeds | collision | "
+          "timeout | mean reward |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     summary = {}
     for arm, runs in curves.items():
         last = [r[-1] for r in runs]
@@ -78,14 +113,28 @@ def main() -> None:
             k: float(np.mean([x[k] for x in last]))
             for k in ("step", "wall_s", "episodes", "success", "collision", "timeout", "reward")
         }
+        _, lo, hi = mean_interval([x["success"] for x in last])
+        row.update(success_lo=lo, success_hi=hi, seeds=seeds_of[arm], success_each=[x["success"] for x in last])
         summary[arm] = row
+        spread = f"{max(0.0, 100 * lo):.1f} to {min(100.0, 100 * hi):.1f} %" if len(runs) > 1 else "one seed"
         print(
             f"| {arm} | {len(runs)} | {row['step']:.0f} | {row['wall_s'] / 60:.1f} min | {row['episodes']:.0f} | "
-            f"{100 * row['success']:.1f} % | {100 * row['collision']:.1f} % | {100 * row['timeout']:.1f} % | "
-            f"{row['reward']:.1f} |"
+            f"{100 * row['success']:.1f} % | {spread} | {100 * row['collision']:.1f} % | "
+            f"{100 * row['timeout']:.1f} % | {row['reward']:.1f} |"
         )
+    for with_prediction, without in ablation_pairs(list(curves)):
+        a, b = summary[with_prediction], summary[without]
+        both = [s for s in a["seeds"] if s in b["seeds"]]
+        diff = [a["success_each"][a["seeds"].index(s)] - b["success_each"][b["seeds"].index(s)] for s in both]
+        if not both:
+            continue
+        m, lo, hi = mean_interval(diff)
+        spread = (f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points"
+                  if len(both) > 1 else "one seed")
+        print(f"{with_prediction} - {without}: success {100 * m:+.1f} points, paired over seeds "
+              f"{', '.join(map(str, both))} ({spread})")
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / f"summary_{args.scene}.json").write_text(json.dumps(summary, indent=2))
+    (Path(args.out) / f"summary_{recipe.name if recipe else scene}.json").write_text(json.dumps(summary, indent=2))
 
     import matplotlib
 
@@ -114,12 +163,35 @@ def main() -> None:
     axes[0].legend(loc="lower right")
     sizes = {int(x["episodes"]) for runs in curves.values() for r in runs for x in r}
     counts = " or ".join(str(n) for n in sorted(sizes))
-    fig.suptitle(f"{args.scene}: learning curves ({counts} held-out seed-500 episodes per point)")
+    fig.suptitle(f"{name}: learning curves ({counts} held-out seed-500 episodes per point)")
     fig.tight_layout()
-    plot = Path(args.plot) if args.plot else Path(args.out) / f"learning_{args.scene}.png"
+    plot = Path(args.plot) if args.plot else Path(args.out) / f"learning_{recipe.name if recipe else scene}.png"
     plot.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(plot, dpi=110)
     print(f"wrote {plot}")
+
+
+def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.Namespace) -> object:
+    """The ``TrainConfig`` of one run: the recipe's for training algorithm ``arm`` (``--steps``, ``--eval-every``
+    and ``--eval-episodes`` over it when given), else the named arm's (``training.config.arm_config``)."""
+    if recipe is None:
+        return arm_config(arm, scene, args.steps or 40_000, seed, args.eval_every or 5_000, args.eval_episodes or 50)
+    given = {"total_steps": args.steps, "eval_every": args.eval_every, "checkpoint_every": args.eval_every,
+             "eval_episodes": args.eval_episodes}
+    return recipe.config(arm, seed, **{k: v for k, v in given.items() if v is not None})
+
+
+def ablation_pairs(arms: list[str]) -> list[tuple[str, str]]:
+    """The pairs of arms that differ only in ``mddpg`` against ``ddpg`` (``reward-mddpg``, ``reward-ddpg``)."""
+    pairs = []
+    for arm in arms:
+        parts = arm.split("-")
+        if "mddpg" in parts:
+            i = parts.index("mddpg")
+            other = "-".join([*parts[:i], "ddpg", *parts[i + 1:]])
+            if other in arms:
+                pairs.append((arm, other))
+    return pairs
 
 
 if __name__ == "__main__":

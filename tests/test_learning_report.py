@@ -1,0 +1,46 @@
+"""``benchmarks/learning.py``'s report: per-arm success with its interval over seeds, and the prediction ablation
+(MDDPG minus DDPG, paired by seed), read from run folders without training (``--no-train``)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+HEADER = "step,wall_s,episodes,success,collision,timeout,off_surface,reward\n"
+
+
+def _run_folder(out: Path, name: str, successes: list[float]) -> None:
+    run = out / name
+    run.mkdir(parents=True)
+    rows = [f"{50_000 * (i + 1)},{60.0 * (i + 1)},100,{s},{1 - s},0.0,0.0,{100 * s}\n" for i, s in enumerate(successes)]
+    (run / "eval.csv").write_text(HEADER + "".join(rows))
+
+
+def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_difference(tmp_path):
+    for seed, (m, d) in enumerate([(0.6, 0.5), (0.7, 0.5), (0.8, 0.6)]):
+        _run_folder(tmp_path, f"deck1-reward-mddpg-seed{seed}", [0.1, m])
+        _run_folder(tmp_path, f"deck1-reward-ddpg-seed{seed}", [0.1, d])
+    env = {**os.environ, "MUJOCO_GL": "disable"}
+    done = subprocess.run(
+        [sys.executable, "benchmarks/learning.py", "--recipe", "deck1-reward", "--no-train", "--out", str(tmp_path)],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "unfinished runs, reported at their latest evaluation: deck1-reward-mddpg-seed0 (at step 100000)" in out
+    # mean 70 %, sd 10 points, t(2) = 4.303: 70 +- 24.8
+    assert "| mddpg | 3 | 100000 | 2.0 min | 100 | 70.0 % | 45.2 to 94.8 % | 30.0 % |" in out
+    # differences 10, 20, 20 points: mean 16.7, sd 5.77, half-width 14.3
+    assert "mddpg - ddpg: success +16.7 points, paired over seeds 0, 1, 2 (95 % interval +2.3 to +31.0 points)" in out
+    assert (tmp_path / "learning_deck1-reward.png").stat().st_size > 0
+
+
+def test_unknown_recipe_is_refused_by_name(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "benchmarks/learning.py", "--recipe", "harbour", "--no-train", "--out", str(tmp_path)],
+        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode != 0 and "unknown recipe 'harbour'" in done.stderr
