@@ -300,3 +300,22 @@ def test_the_physics_shortcuts_change_nothing(monkeypatch, undo):
     assert np.array_equal(fast[0], plain[0])
     assert np.array_equal(fast[1], plain[1])
     assert fast[2] == plain[2]
+
+
+@pytest.mark.parametrize("scene", ["deck1", "deck2"])
+def test_every_vehicle_starts_an_episode_at_rest_on_its_wheels(scene):
+    """The agent and every wheeled mover are placed with their wheels on the deck, not dropped onto it: over the
+    first control step no free body sinks or rises by more than a centimetre or moves vertically faster than
+    5 cm/s."""
+    env = deck_sim.load(scene, seed=3)
+    for episode in range(2):
+        env.reset()
+        m, d = env.physics.model.ptr, env.physics.data.ptr
+        free = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        assert len(free) >= 2  # the agent and at least one wheeled mover
+        z0 = np.array([d.qpos[m.jnt_qposadr[j] + 2] for j in free])
+        env.step(np.zeros(2))
+        z1 = np.array([d.qpos[m.jnt_qposadr[j] + 2] for j in free])
+        vz = np.array([d.qvel[m.jnt_dofadr[j] + 2] for j in free])
+        assert np.all(np.abs(z1 - z0) < 0.01), (episode, z1 - z0)
+        assert np.all(np.abs(vz) < 0.05), (episode, vz)

@@ -102,8 +102,8 @@ class MoverDriver:
                 physics.bind(list(mover.joints)).qpos = 0.0
                 physics.bind(list(mover.joints)).qvel = 0.0
             else:
-                z = 1.8 if isinstance(mover, Aircraft) else 0.0
-                mover.set_pose(physics, np.array([*layout.mover_xy[i], z]), yaw_quat(mover_yaw[i]))
+                # the attachment frame on the surface (a model's root body carries its own height above it)
+                mover.set_pose(physics, np.array([*layout.mover_xy[i], 0.0]), yaw_quat(mover_yaw[i]))
                 mover.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
 
     def command(self, t: float, st: dict[str, np.ndarray]) -> None:
@@ -159,8 +159,7 @@ class MoverDriver:
                 )
                 physics.bind(list(mover.joints)).qvel = 0.0
             else:
-                z = 1.8 if isinstance(mover, Aircraft) else 0.0
-                mover.set_pose(physics, np.array([*xy, z]), yaw_quat(0.0))
+                mover.set_pose(physics, np.array([*xy, 0.0]), yaw_quat(0.0))
                 mover.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
             self._behaviour.mode[i] = 1  # dwell, then leave as usual
             self._behaviour.dwell_until[i] = physics.data.time + self._dwell

@@ -322,7 +322,8 @@ class Navigate(composer.Task):
         self.layout = layout
         spec = self.spec
         if isinstance(self._agent, Aircraft):
-            self._agent.set_pose(physics, np.array([*layout.agent_xy, 1.8]), yaw_quat(layout.agent_yaw))
+            # the attachment frame on the surface: the model's own root sits 1.8 m above it, wheels on the deck
+            self._agent.set_pose(physics, np.array([*layout.agent_xy, 0.0]), yaw_quat(layout.agent_yaw))
             self._agent.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
         else:
             # a pedestrian's slide joints live in its attachment frame: keep that frame unrotated (world axes)
