@@ -93,3 +93,30 @@ def test_a_baseline_run_saves_its_config_and_resumes_a_run_of_the_step_count_for
     train_baseline("dqn", "deck1", 48, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
     meta = LearnedPolicy.load(out / "actor.npz").meta
     assert meta["trained_steps"] == 48 and meta["config"]["seed"] == 0 and "total_steps" in meta["config"]
+
+
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_a_baseline_steps_several_environments_each_on_its_own_episode_stream(tmp_path, algo):
+    """With ``num_envs`` environments the run's steps count every environment's transitions, logging and
+    evaluation fire when the count passes each period, and environment ``i`` plays
+    ``train_episode_seed(seed, i, k)``."""
+    from training.baselines import SeededEpisodes, train_baseline
+    from training.config import train_episode_seed
+
+    out = tmp_path / algo
+    kwargs = {"learning_starts": 20, "buffer_size": 1000} if algo == "dqn" else {"n_steps": 4}
+    summary = train_baseline(
+        algo, "deck1", 48, 0, out, progress=False, num_envs=3, eval_every=30, eval_episodes=1, log_every=16, **kwargs
+    )
+    assert summary["step"] == 48
+    assert [int(r["step"]) for r in csv_rows(out / "progress.csv")] == [18, 33, 48]
+    assert [int(r["step"]) for r in csv_rows(out / "eval.csv")] == [30, 48]
+    from deck_sim.wrappers import DeckSimEnv
+
+    first = []
+    for stream in range(2):
+        obs, _ = SeededEpisodes(DeckSimEnv("deck1", episode__predictor="none"), 0, stream).reset()
+        expected, _ = DeckSimEnv("deck1", episode__predictor="none").reset(seed=train_episode_seed(0, stream, 0))
+        np.testing.assert_array_equal(obs, expected)
+        first.append(obs)
+    assert not np.array_equal(first[0], first[1])

@@ -111,6 +111,12 @@ def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(caps
         ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\nwings = 2\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\n',
          "unknown training config field\\(s\\): wings"),
         ("scene = \n", "not valid TOML"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\nwings = 2\n',
+         "\\[sb3\\]: unknown dqn config field\\(s\\): wings"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\n'
+         '[sb3.a2c]\nn_steps = 0\n', "\\[sb3.a2c\\]: n_steps: must be at least 1"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\nseed = 3\n',
+         "\\[sb3\\]: seed is set by the recipe"),
     ],
 )
 def test_a_bad_recipe_file_is_refused_naming_the_problem(tmp_path, text, message):
@@ -130,3 +136,17 @@ def test_a_reward_alone_agent_that_is_not_shipped_is_refused_with_the_command_th
     with pytest.raises(SystemExit):  # a shipped agent's name, not a training algorithm
         main(["train", "--algo", "mddpg-reward", "--print-config"])
     assert "invalid choice: 'mddpg-reward'" in capsys.readouterr().err
+
+
+def test_a_recipe_gives_dqn_and_a2c_their_shared_and_their_own_fields(tmp_path, capsys):
+    path = tmp_path / "fair.toml"
+    path.write_text('scene = "deck2"\n[ddpg]\npreset = "reward"\ntotal_steps = 1000\n[sb3]\nseeds = [0, 1]\n'
+                    "steps = 5000\neval_every = 1000\neval_episodes = 5\nnum_envs = 4\n"
+                    "[sb3.a2c]\nn_steps = 8\nent_coef = 0.01\n[sb3.dqn]\nlearning_starts = 500\n")
+    recipe = load_recipe(path)
+    assert recipe.baseline_kwargs("a2c") == {"steps": 5000, "eval_every": 1000, "eval_episodes": 5, "num_envs": 4,
+                                             "n_steps": 8, "ent_coef": 0.01}
+    assert recipe.baseline_kwargs("dqn")["learning_starts"] == 500 and "n_steps" not in recipe.baseline_kwargs("dqn")
+    assert main(["train", "--recipe", str(path), "--algo", "a2c", "--seed", "1", "--print-config"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert (printed["scene"], printed["num_envs"], printed["n_steps"], printed["total_steps"]) == ("deck2", 4, 8, 5000)

@@ -50,6 +50,10 @@ class BaselineConfig:
     """Hidden layer widths of SB3's ``MlpPolicy`` (``policy_kwargs["net_arch"]``; A2C: of the actor and of the
     critic each). SB3's default is (64, 64)."""
 
+    num_envs: int = 1
+    """Environments stepped in lockstep (SB3's ``DummyVecEnv``); environment ``i`` plays the training episodes
+    ``train_episode_seed(seed, i, k)``. A2C's rollout is ``n_steps`` steps of each. 1: one environment."""
+
     eval_every: int = 10_000
     """Evaluate the greedy policy every this many environment steps, and save ``model.zip`` (0: only at the
     end)."""
@@ -72,7 +76,7 @@ class BaselineConfig:
             setattr(self, f.name, field_value(f.name, getattr(self, f.name), hints[f.name]))
         if not 0 <= self.seed < 4_000:
             raise ConfigError(f"seed: must lie in [0, 4000) (episode seeds must fit in 32 bits), got {self.seed!r}")
-        for name in ("total_steps", "eval_episodes", "log_every", *self._at_least_one):
+        for name in ("total_steps", "num_envs", "eval_episodes", "log_every", *self._at_least_one):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}: must be at least 1, got {getattr(self, name)!r}")
         for name in ("eval_every", *self._non_negative):

@@ -77,21 +77,26 @@ class DiscreteDisplacement(gymnasium.ActionWrapper):
 
 
 class SeededEpisodes(gymnasium.Wrapper):
-    """Resets episode ``k`` with ``train_episode_seed(seed, 0, k)`` (disjoint from evaluation seeds)."""
+    """Resets episode ``k`` with ``train_episode_seed(seed, stream, k)`` (disjoint from evaluation seeds; one stream
+    per environment of a run)."""
 
-    def __init__(self, env: gymnasium.Env, seed: int) -> None:
+    def __init__(self, env: gymnasium.Env, seed: int, stream: int = 0) -> None:
         super().__init__(env)
-        self.run_seed, self.episode = seed, 0
+        self.run_seed, self.stream, self.episode = seed, stream, 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
-        out = self.env.reset(seed=train_episode_seed(self.run_seed, 0, self.episode), options=options)
+        out = self.env.reset(seed=train_episode_seed(self.run_seed, self.stream, self.episode), options=options)
         self.episode += 1
         return out
 
 
-def _make_env(algo: str, scene: str, seed: int, overrides: dict[str, Any]) -> gymnasium.Env:
-    env: gymnasium.Env = SeededEpisodes(DeckSimEnv(scene, episode__predictor="none", **overrides), seed)
+def _make_env(algo: str, scene: str, seed: int, overrides: dict[str, Any], stream: int = 0) -> gymnasium.Env:
+    env: gymnasium.Env = SeededEpisodes(DeckSimEnv(scene, episode__predictor="none", **overrides), seed, stream)
     return DiscreteDisplacement(env) if algo == "dqn" else env
+
+
+def _env_maker(algo: str, scene: str, seed: int, overrides: dict[str, Any], stream: int) -> Any:
+    return lambda: _make_env(algo, scene, seed, overrides, stream)
 
 
 class SB3Policy:
@@ -269,7 +274,7 @@ def train_baseline(
     scene, seed, steps, overrides = cfg.scene, cfg.seed, cfg.total_steps, cfg.scene_overrides
     eval_every, eval_episodes, eval_seed, log_every = cfg.eval_every, cfg.eval_episodes, cfg.eval_seed, cfg.log_every
     out = Path(out)
-    venv = DummyVecEnv([lambda: _make_env(algo, scene, seed, overrides)])
+    venv = DummyVecEnv([_env_maker(algo, scene, seed, overrides, i) for i in range(cfg.num_envs)])
     keys = venv.envs[0].unwrapped.observation_keys
     shapes = venv.envs[0].unwrapped.composer_env.task.observation_shapes
     model_path, norm_path = out / "model.zip", out / "vecnormalize.pkl"
@@ -353,31 +358,39 @@ def train_baseline(
         def __init__(self) -> None:
             super().__init__()
             self.recent: deque[tuple[str, float]] = deque(maxlen=50)
-            self.ret = 0.0
+            self.ret = np.zeros(cfg.num_envs)
             self.t0 = time.perf_counter()
             self.t_log, self.n_log = self.t0, done_steps
             self.bar = progress_report(
                 total=steps, initial=done_steps, desc=f"{algo} {scene}", unit="step", disable=not progress
             )
             self.last_eval: dict[str, float] = {}
+            self.last_eval_step = -1
             self.episodes = 0
+            # log and evaluate when the step count reaches a multiple of the period (with several environments
+            # it moves in strides of their number)
+            self.log_block = done_steps // log_every
+            self.eval_block = done_steps // eval_every if eval_every else 0
 
         def _on_step(self) -> bool:
-            self.ret += float(self.locals["rewards"][0])
-            if self.locals["dones"][0]:
-                info = self.locals["infos"][0]
+            self.ret += np.asarray(self.locals["rewards"], dtype=np.float64)
+            for i, done in enumerate(self.locals["dones"]):
+                if not done:
+                    continue
+                info = self.locals["infos"][i]
                 truncated = bool(info.get("TimeLimit.truncated", False)) or (
                     not info["reached_goal"]
                     and not info["collision"]
                     and not info["left_surface"]
                     and not info["diverged"]
                 )
-                self.recent.append((outcome_of(info, truncated), self.ret))
-                self.ret = 0.0
+                self.recent.append((outcome_of(info, truncated), float(self.ret[i])))
+                self.ret[i] = 0.0
                 self.episodes += 1
             n = self.num_timesteps
-            self.bar.update(1)
-            if n % log_every == 0:
+            self.bar.update(n - self.bar.n)
+            if n // log_every > self.log_block:
+                self.log_block = n // log_every
                 now = time.perf_counter()
                 outcomes = [o for o, _ in self.recent]
                 k = max(len(outcomes), 1)
@@ -401,8 +414,9 @@ def train_baseline(
                         {k2: row.get(k2, "") for k2 in PROGRESS_FIELDS}
                     )
                 self.bar.set_postfix(success=f"{row['success']:.0%}", reward=f"{row['ep_reward']:.0f}")
-            if eval_every and n % eval_every == 0:
-                self.last_eval = evaluate(n, time.perf_counter() - self.t0)
+            if eval_every and n // eval_every > self.eval_block:
+                self.eval_block = n // eval_every
+                self.last_eval, self.last_eval_step = evaluate(n, time.perf_counter() - self.t0), n
                 model.save(str(model_path))
                 venv.save(str(norm_path))
             return True
@@ -414,7 +428,7 @@ def train_baseline(
     logger.bar.close()
     model.save(str(model_path))
     venv.save(str(norm_path))
-    last = logger.last_eval if eval_every and model.num_timesteps % eval_every == 0 else {}
+    last = logger.last_eval if logger.last_eval_step == model.num_timesteps else {}
     if not last:
         last = evaluate(int(model.num_timesteps), time.perf_counter() - t0)
     save_sb3_actor(out / "actor.npz", model, venv, algo, actor_meta(int(model.num_timesteps)))
@@ -448,7 +462,7 @@ def load_baseline(run_dir: str | Path) -> SB3Policy:
     run_dir = Path(run_dir)
     cfg = json.loads((run_dir / "config.json").read_text())
     algo = cfg["algo"]
-    venv = DummyVecEnv([lambda: _make_env(algo, cfg["scene"], cfg["seed"], cfg.get("scene_overrides", {}))])
+    venv = DummyVecEnv([_env_maker(algo, cfg["scene"], cfg["seed"], cfg.get("scene_overrides", {}), 0)])
     keys = venv.envs[0].unwrapped.observation_keys
     norm = VecNormalize.load(str(run_dir / "vecnormalize.pkl"), venv)
     norm.training = False

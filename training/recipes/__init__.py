@@ -4,8 +4,10 @@ the reward alone, the paper's protocol).
 
 A recipe names its scene and two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of ``training.config.PRESETS``,
 the training seeds, and any ``TrainConfig`` fields over the preset) and ``[sb3]`` for the DQN and A2C baselines
-(seeds, steps and evaluation cadence). ``deck-sim train --recipe deck1 --algo mddpg --seed 0`` trains one seed;
-``scripts/train_shipped.py`` trains every seed of every agent and ships the result.
+(seeds, steps and evaluation cadence, any field both configs share such as ``num_envs``; ``[sb3.dqn]`` and
+``[sb3.a2c]`` hold each algorithm's own fields, ``training.baseline_config``). ``deck-sim train --recipe deck1
+--algo mddpg --seed 0`` trains one seed; ``scripts/train_shipped.py`` trains every seed of every agent and ships
+the result.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ class Recipe:
         ddpg_seeds: Training seeds of MDDPG and DDPG; the shipped file acts by the mean of their actors.
         ddpg_fields: ``TrainConfig`` fields over the preset.
         sb3_seeds: Training seeds of DQN and A2C.
-        sb3_fields: ``steps``, ``eval_every`` and ``eval_episodes`` of DQN and A2C.
+        sb3_fields: ``steps``, ``eval_every`` and ``eval_episodes`` of DQN and A2C, and any other field of their
+            configs: shared ones at the top, each algorithm's own under its name (``{"dqn": {...}}``).
     """
 
     name: str
@@ -65,7 +68,8 @@ class Recipe:
         """Keyword arguments of ``training.baselines.train_baseline`` for a DQN or A2C run of this recipe."""
         if _trainer(algo) != "sb3":
             raise ConfigError(f"recipe {self.name}: {algo} trains with training.ddpg; use config")
-        return dict(self.sb3_fields)
+        shared = {k: v for k, v in self.sb3_fields.items() if k not in ("dqn", "a2c")}
+        return {**shared, **self.sb3_fields.get(algo, {})}
 
 
 def _trainer(algo: str) -> str:
@@ -111,9 +115,17 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     missing = [k for k in ("total_steps",) if k not in ddpg] + [k for k in BASELINE_FIELDS if k not in sb3]
     if missing:
         raise ConfigError(f"{path.name}: missing field(s) {', '.join(missing)}")
-    extra = sorted(set(sb3) - set(BASELINE_FIELDS))
-    if extra:
-        raise ConfigError(f"{path.name} [sb3]: unknown field(s) {', '.join(extra)}; expected {BASELINE_FIELDS}")
+    from training.baseline_config import baseline_config
+
+    for algo in ("dqn", "a2c"):  # every [sb3] field is checked now, not at training time
+        fields = {k: v for k, v in recipe.baseline_kwargs(algo).items() if k not in BASELINE_FIELDS}
+        for key in ("algo", "scene", "seed", "total_steps"):
+            if key in fields:
+                raise ConfigError(f"{path.name} [sb3]: {key} is set by the recipe's scene, seeds and steps")
+        try:
+            baseline_config(algo, **fields)
+        except ConfigError as err:
+            raise ConfigError(f"{path.name} [sb3{'.' + algo if algo in sb3 else ''}]: {err}") from None
     recipe.config("mddpg", recipe.ddpg_seeds[0])  # every [ddpg] field is checked now, not at training time
     return recipe
 
