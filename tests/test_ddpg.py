@@ -60,6 +60,17 @@ def test_td_target_and_critic_loss_equal_a_hand_computed_case():
     np.testing.assert_allclose(stats["q"], (q0 + q1) / 2, rtol=1e-6)
 
 
+def test_prioritised_weights_scale_each_squared_error_and_the_td_errors_are_kept():
+    agent = _tiny_agent()
+    batch = _batch([[1.0, 0.0], [0.5, 0.5]], [[0.5], [-1.0]], [1.0, -2.0], [[2.0, 1.0], [0.0, 3.0]], [0.0, 1.0])
+    q_next0 = 3.0 * (3.0 + 2.0 * np.tanh(0.5)) + 1.0
+    y = np.array([1.0 + 0.9 * q_next0, -2.0])
+    q = np.array([3.0 * (1.0 + 2.0 * 0.5) + 1.0, 1.0])
+    stats = agent.update(batch._replace(weight=torch.tensor([0.25, 1.0])))
+    np.testing.assert_allclose(stats["critic_loss"], (0.25 * (q[0] - y[0]) ** 2 + (q[1] - y[1]) ** 2) / 2, rtol=1e-6)
+    np.testing.assert_allclose(agent.last_td_error, q - y, rtol=1e-6)
+
+
 def test_actor_loss_and_the_twin_critics_minimum_by_hand():
     agent = _tiny_agent(twin_critics=True)
     with torch.no_grad():  # second target head: q = 3 h - 4, always 5 below the first

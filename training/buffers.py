@@ -8,6 +8,10 @@ episode (goal, collision, leaving the deck: no bootstrap); a time-limit truncati
 With ``track_episodes`` the buffer also knows which of the agent's transitions belong to one episode, in order
 (``episode_rows``), and how each ended (``reached``, ``failed``): what hindsight goals and n-step returns
 (``training.her``) read. The bookkeeping draws no random numbers and changes no stored transition.
+
+With ``prioritised`` the agent's rows carry a priority (proportional prioritised replay, Schaul et al. 2016):
+``prioritised_rows`` draws them in proportion to it and gives each its importance-sampling weight, and
+``update_priorities`` sets the priorities from the last update's TD errors.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ class Batch(NamedTuple):
     discount: torch.Tensor | None = None
     """Per transition, the discount of the bootstrap from ``next_obs`` (gamma^m after an m-step return); None:
     every transition is one step, discounted by the config's gamma."""
+    weight: torch.Tensor | None = None
+    """Per transition, the importance-sampling weight of its squared TD error (prioritised replay); None: 1."""
 
 
 @dataclass(frozen=True)
@@ -66,9 +72,12 @@ class ReplayBuffer:
         obs_dim, act_dim: sizes of one observation and one action.
         track_episodes: keep each agent episode's rows in step order and how each transition ended (``add``'s
             ``marks``).
+        prioritised: keep a priority per agent row (``prioritised_rows``, ``update_priorities``).
     """
 
-    def __init__(self, capacity: int, obs_dim: int, act_dim: int, track_episodes: bool = False) -> None:
+    def __init__(
+        self, capacity: int, obs_dim: int, act_dim: int, track_episodes: bool = False, prioritised: bool = False
+    ) -> None:
         if capacity < 1:
             raise ValueError(f"capacity must be at least 1, got {capacity}")
         self.capacity = int(capacity)
@@ -98,6 +107,12 @@ class ReplayBuffer:
             """1 on an episode's last transition (terminated or truncated)."""
             self.episode_rows: dict[int, list[int]] = {}
             """Per episode still in the buffer, its rows by step (-1 where overwritten)."""
+        self.prioritised = bool(prioritised)
+        if self.prioritised:
+            self.priority = np.zeros(capacity, dtype=np.float64)
+            """Each agent row's sampling priority, (|TD error| + eps)^alpha of its last update."""
+            self.max_priority = 1.0
+            """The largest priority given so far: a new row's."""
 
     @property
     def n_agent(self) -> int:
@@ -167,6 +182,8 @@ class ReplayBuffer:
         else:
             self.expert_action[rows] = expert_action
             self.labelled[rows] = 1.0
+        if self.prioritised:
+            self.priority[rows] = self.max_priority
         self._next = int(self.n_demo + (rows[-1] - self.n_demo + 1) % span)
         self.size = min(self.capacity, self.size + n)
 
@@ -214,6 +231,43 @@ class ReplayBuffer:
         )
         return rows
 
+    def prioritised_rows(
+        self, batch_size: int, rng: np.random.Generator, demo_fraction: float = 0.0, beta: float = 0.4
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Rows as ``sample_rows`` splits them between demonstrations (uniform) and the agent's rows, these drawn in
+        proportion to their priority, and the importance-sampling weight of each: (N P(i))^-beta over the agent
+        rows, divided by the batch's largest (demonstrations weigh 1)."""
+        if not self.prioritised:
+            raise RuntimeError("prioritised_rows needs a buffer made with prioritised=True")
+        if self.size == 0:
+            raise RuntimeError("cannot sample from an empty replay buffer")
+        n_demo = 0
+        if self.n_demo and self.n_agent:
+            n_demo = int(round(batch_size * demo_fraction))
+        elif self.n_demo:
+            n_demo = batch_size
+        demo_rows = rng.integers(0, self.n_demo, n_demo) if n_demo else np.zeros(0, dtype=np.int64)
+        k = batch_size - n_demo
+        weights = np.ones(batch_size, dtype=np.float32)
+        if k == 0:
+            return demo_rows, weights
+        p = self.priority[self.n_demo : self.size]
+        cum = np.cumsum(p)
+        total = float(cum[-1])
+        picks = np.minimum(np.searchsorted(cum, rng.random(k) * total, side="right"), len(p) - 1)
+        w = (len(p) * p[picks] / total) ** -beta
+        weights[n_demo:] = w / w.max()
+        return np.concatenate([demo_rows, self.n_demo + picks]), weights
+
+    def update_priorities(self, rows: np.ndarray, td_error: np.ndarray, alpha: float, eps: float) -> None:
+        """Set the priority of the agent's ``rows`` to (|``td_error``| + ``eps``)^``alpha`` (demonstration rows are
+        left as they are)."""
+        agent = rows >= self.n_demo
+        value = (np.abs(np.asarray(td_error, dtype=np.float64)[agent]) + eps) ** alpha
+        self.priority[rows[agent]] = value
+        if value.size:
+            self.max_priority = max(self.max_priority, float(value.max()))
+
     def batch(self, rows: np.ndarray) -> Batch:
         """The rows ``rows`` as a typed batch."""
         t = torch.from_numpy
@@ -237,10 +291,15 @@ class ReplayBuffer:
             "size": n,
             "next": self._next,
             **{k: torch.from_numpy(getattr(self, k)[:n].copy()) for k in self._arrays()},
+            **({"max_priority": self.max_priority} if self.prioritised else {}),
         }
 
     def _arrays(self) -> tuple[str, ...]:
-        return self._ARRAYS + (self._EPISODE_ARRAYS if self.track_episodes else ())
+        return (
+            self._ARRAYS
+            + (self._EPISODE_ARRAYS if self.track_episodes else ())
+            + (("priority",) if self.prioritised else ())
+        )
 
     def load_state_dict(self, state: dict[str, object]) -> None:
         """Restore what ``state_dict`` returned (the buffer must have the same capacity and sizes)."""
@@ -249,7 +308,9 @@ class ReplayBuffer:
         n = int(state["size"])
         missing = [k for k in self._arrays() if k not in state]
         if missing:
-            raise ValueError(f"checkpoint buffer lacks {', '.join(missing)} (saved without episode tracking)")
+            raise ValueError(
+                f"checkpoint buffer lacks {', '.join(missing)} (saved without episode tracking or priorities)"
+            )
         for k in self._arrays():
             value = state[k].numpy()
             if value.shape[1:] != getattr(self, k).shape[1:]:
@@ -258,6 +319,8 @@ class ReplayBuffer:
                 )
             getattr(self, k)[:n] = value
         self.n_demo, self.size, self._next = int(state["n_demo"]), n, int(state["next"])
+        if self.prioritised:
+            self.max_priority = float(state["max_priority"])
         if self.track_episodes:
             self._rebuild_episode_rows()
 

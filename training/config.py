@@ -211,6 +211,15 @@ class TrainConfig:
     n_step: int = 1
     """Transitions summed per critic target: the discounted rewards of the next ``n_step`` transitions of the
     episode, then gamma^n_step times the bootstrap (``training.her``). 1: the one-step target of eq. 3."""
+    per_alpha: float = 0.0
+    """Prioritised replay (Schaul et al. 2016, proportional): the agent's transitions are sampled with probability
+    proportional to (|TD error| + ``per_eps``)^``per_alpha`` of their last update, a new one at the largest
+    priority so far (demonstrations stay uniform, in their ``demo_fraction``). 0: uniform sampling."""
+    per_beta: float = 0.4
+    """Prioritised replay's importance-sampling exponent at the first update, raised linearly to 1 at
+    ``total_steps``: the critic's squared errors are weighted by (N P(i))^-beta over the batch's largest weight."""
+    per_eps: float = 1e-3
+    """Added to |TD error| (scaled-reward units) so that no transition's priority falls to 0."""
     demo_episodes: int = 0
     """Episodes of the full-knowledge scripted planner placed in the replay buffer before training (DDPGfD)."""
     demo_noise: float = 0.0
@@ -335,6 +344,11 @@ class TrainConfig:
             raise ConfigError(f"her_ratio: must lie in [0, 1], got {self.her_ratio!r}")
         if isinstance(self.n_step, bool) or not isinstance(self.n_step, int) or not 1 <= self.n_step <= 100:
             raise ConfigError(f"n_step: must be an integer in [1, 100], got {self.n_step!r}")
+        for name in ("per_alpha", "per_beta"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(self, name)!r}")
+        if not self.per_eps > 0.0:
+            raise ConfigError(f"per_eps: must be positive, got {self.per_eps!r}")
         if self.demo_noise < 0:
             raise ConfigError(f"demo_noise: must be >= 0, got {self.demo_noise!r}")
         for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale", "polish_lr"):
@@ -470,6 +484,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "dagger": {"dagger_steps": 40_000},
     "her": {"her_ratio": 0.8},
     "nstep": {"n_step": 3},
+    "per": {"per_alpha": 0.6, "per_beta": 0.4},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -488,7 +503,8 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 ``episode.near_obstacles``; ``body``: the teacher checks the agent's whole body on the way it will really go,
 ``teacher_body``; ``dagger``: after the final fit, the fitted actor drives 40,000 more steps, greedy and without
 updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
-the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``). Several switches join with ``+``:
+the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
+alpha 0.6 and beta from 0.4, ``per_alpha``). Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 

@@ -131,12 +131,18 @@ class DDPGAgent:
 
         Returns the update's statistics: ``critic_loss``, ``q`` (mean Q of the batch's actions) and, when the actor
         was updated, ``actor_loss``, ``bc_loss`` and ``bc_share`` (the share of demonstration samples cloned).
+        The first critic's TD errors of the batch (B,) are left in ``last_td_error`` (prioritised replay's
+        priorities).
         """
         cfg = self.config
         y = self.td_target(batch)
         obs = self.norm(batch.obs)
         qs = self.critic(obs, batch.action)
-        critic_loss = sum(torch.mean((q - y) ** 2) for q in qs)
+        if batch.weight is None:
+            critic_loss = sum(torch.mean((q - y) ** 2) for q in qs)
+        else:  # prioritised replay: each squared error by its importance-sampling weight
+            critic_loss = sum(torch.mean(batch.weight * (q - y) ** 2) for q in qs)
+        self.last_td_error = (qs[0] - y).detach().numpy()
         self.critic_opt.zero_grad(set_to_none=True)
         critic_loss.backward()
         if cfg.grad_clip > 0:

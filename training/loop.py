@@ -159,7 +159,9 @@ class Trainer:
         self.envs = make_runner(cfg.num_envs, self.workers, AgentView(self.layout, cfg), backend, ray_address)
         self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1), self.layout.shapes)
         tracking = cfg.her_ratio > 0.0 or cfg.n_step > 1
-        self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, 2, track_episodes=tracking)
+        self.buffer = ReplayBuffer(
+            cfg.buffer_size, self.obs_dim, 2, track_episodes=tracking, prioritised=cfg.per_alpha > 0.0
+        )
         self.hindsight = self._hindsight_sampler() if tracking else None
         """Hindsight targets and n-step returns for the learner's batches (``training.her``), or None."""
         self.noise = make_noise(cfg.noise, cfg.num_envs, 2, cfg.noise_sigma, cfg.ou_theta)
@@ -468,12 +470,21 @@ class Trainer:
             return
         self.update_debt += cfg.num_envs * cfg.updates_per_step
         while self.update_debt >= 1.0:
-            if self.hindsight is None:
-                batch = self.buffer.sample(cfg.batch_size, self.rng, cfg.demo_fraction)
+            weights = None
+            if self.buffer.prioritised:
+                beta = cfg.per_beta + (1.0 - cfg.per_beta) * min(1.0, step / cfg.total_steps)
+                rows, weights = self.buffer.prioritised_rows(cfg.batch_size, self.rng, cfg.demo_fraction, beta)
             else:
                 rows = self.buffer.sample_rows(cfg.batch_size, self.rng, cfg.demo_fraction)
+            if self.hindsight is None:
+                batch = self.buffer.batch(rows)
+            else:
                 batch = self.hindsight.batch(self.buffer, rows, self.rng)
+            if weights is not None:
+                batch = batch._replace(weight=torch.from_numpy(weights))
             stats = self.agent.update(batch)
+            if weights is not None:
+                self.buffer.update_priorities(rows, self.agent.last_td_error, cfg.per_alpha, cfg.per_eps)
             self.stats.updates.update(stats)
             self.update_debt -= 1.0
 
