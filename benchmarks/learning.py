@@ -11,16 +11,17 @@ arm, with the machine; plots success and mean episode reward against environment
 
 Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
 tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. With ``--recipe
-NAME`` the arms are training algorithms (default ``mddpg,ddpg``) of that recipe file (``training.recipes``), with
-its steps, seeds and evaluations unless given, in ``--out/<recipe>-<algo>-seed<s>``: the folders of
-``scripts/train_shipped.py``, so one set of runs serves both. An arm whose run folder already holds a finished run
-is read back, not retrained (delete the folder to rerun it); one with a checkpoint is resumed. ``--no-train``
-reports the runs as they stand (an unfinished run by its latest evaluation) and trains nothing.
+NAME`` the arms are training algorithms (default ``mddpg,ddpg,dqn,a2c``) of that recipe file (``training.recipes``),
+with its steps, seeds and evaluations unless given (DQN and A2C: its ``[sb3]`` table), in
+``--out/<recipe>-<algo>-seed<s>``: the folders of ``scripts/train_shipped.py``, so one set of runs serves both. An
+arm whose run folder already holds a finished run is read back, not retrained (delete the folder to rerun it); one
+with a checkpoint is resumed. ``--no-train`` reports the runs as they stand (an unfinished run by its latest
+evaluation) and trains nothing.
 
 Beside each arm's mean over seeds, the table gives the 95 % interval of its success over seeds (Student's t, clipped
-to 0-100 %), and
-for every pair of arms that differ only in ``mddpg`` against ``ddpg`` the difference of their success, seed by
-seed, with its 95 % interval over the seeds both finished (the prediction ablation).
+to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
+for each neighbour pair of the paper's ranking MDDPG > DDPG > DQN > A2C in recipe mode, it prints the difference of
+their success, paired by seed, with its 95 % interval over the seeds both have.
 """
 
 from __future__ import annotations
@@ -74,23 +75,29 @@ def main() -> None:
         raise SystemExit(f"--recipe {recipe.name} trains on {recipe.scene}; drop --scene {args.scene}")
     scene = recipe.scene if recipe is not None else (args.scene or "deck1")
     print(machine(torch=torch.__version__))
-    arms = (args.arms or ("mddpg,ddpg" if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
-    seeds = ([int(s) for s in args.seeds.split(",")] if args.seeds
-             else list(recipe.seeds(arms[0])) if recipe else [0])
+    arms = (args.arms or (",".join(PAPER_ORDER) if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
+    if recipe is not None and not set(arms) <= set(PAPER_ORDER):
+        raise SystemExit(f"--arms with --recipe: training algorithms, some of {', '.join(PAPER_ORDER)}")
+    seeds_given = [int(s) for s in args.seeds.split(",")] if args.seeds else None
     curves: dict[str, list[list[dict[str, float]]]] = {}
     seeds_of: dict[str, list[int]] = {}
     unfinished = []
     for arm in arms:
-        for seed in seeds:
+        for seed in seeds_given or (list(recipe.seeds(arm)) if recipe else [0]):
             run = Path(args.out) / (f"{recipe.name}-{arm}-seed{seed}" if recipe else f"{scene}-{arm}-seed{seed}")
             if not (run / "actor.npz").exists() and not args.no_train:
                 try:
                     cfg = run_config(recipe, arm, scene, seed, args)
                 except ValueError as err:
                     raise SystemExit(str(err)) from err
-                resume = (run / "checkpoint.pt").exists()
+                resume = (run / ("model.zip" if isinstance(cfg, dict) else "checkpoint.pt")).exists()
                 print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
-                Trainer(cfg, run, resume=resume).train()
+                if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
+                    from training.baselines import train_baseline
+
+                    train_baseline(**cfg, out=run, resume=resume)
+                else:
+                    Trainer(cfg, run, resume=resume).train()
             if not (run / "eval.csv").exists() or not read_eval(run):
                 print(f"{run}: no evaluation yet, left out", flush=True)
                 continue
@@ -172,24 +179,36 @@ def main() -> None:
 
 
 def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.Namespace) -> object:
-    """The ``TrainConfig`` of one run: the recipe's for training algorithm ``arm`` (``--steps``, ``--eval-every``
-    and ``--eval-episodes`` over it when given), else the named arm's (``training.config.arm_config``)."""
+    """What one run trains with: with a recipe, its ``TrainConfig`` for ``mddpg`` or ``ddpg`` and the keyword
+    arguments of ``training.baselines.train_baseline`` for ``dqn`` or ``a2c`` (``--steps``, ``--eval-every`` and
+    ``--eval-episodes`` over it when given); else the named arm's ``TrainConfig`` (``training.config.arm_config``)."""
     if recipe is None:
         return arm_config(arm, scene, args.steps or 40_000, seed, args.eval_every or 5_000, args.eval_episodes or 50)
+    if arm in ("dqn", "a2c"):
+        given = {"steps": args.steps, "eval_every": args.eval_every, "eval_episodes": args.eval_episodes}
+        kwargs = {**recipe.baseline_kwargs(arm), **{k: v for k, v in given.items() if v is not None}}
+        return {"algo": arm, "scene": scene, "seed": seed, **kwargs}
     given = {"total_steps": args.steps, "eval_every": args.eval_every, "checkpoint_every": args.eval_every,
              "eval_episodes": args.eval_episodes}
     return recipe.config(arm, seed, **{k: v for k, v in given.items() if v is not None})
 
 
+PAPER_ORDER = ("mddpg", "ddpg", "dqn", "a2c")
+"""The paper's ranking of the four learned agents, best first."""
+
+
 def ablation_pairs(arms: list[str]) -> list[tuple[str, str]]:
-    """The pairs of arms that differ only in ``mddpg`` against ``ddpg`` (``reward-mddpg``, ``reward-ddpg``)."""
-    pairs = []
+    """The pairs of arms whose success difference is printed: those that differ only in ``mddpg`` against ``ddpg``
+    (``reward-mddpg``, ``reward-ddpg``: the prediction ablation), and the neighbours in the paper's ranking
+    (``PAPER_ORDER``) among a recipe's training algorithms."""
+    ranked = [a for a in PAPER_ORDER if a in arms]
+    pairs = list(zip(ranked, ranked[1:], strict=False)) if len(ranked) > 1 else []
     for arm in arms:
         parts = arm.split("-")
         if "mddpg" in parts:
             i = parts.index("mddpg")
             other = "-".join([*parts[:i], "ddpg", *parts[i + 1:]])
-            if other in arms:
+            if other in arms and (arm, other) not in pairs:
                 pairs.append((arm, other))
     return pairs
 

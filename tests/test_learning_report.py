@@ -20,9 +20,10 @@ def _run_folder(out: Path, name: str, successes: list[float]) -> None:
 
 
 def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_difference(tmp_path):
-    for seed, (m, d) in enumerate([(0.6, 0.5), (0.7, 0.5), (0.8, 0.6)]):
+    for seed, (m, d, q) in enumerate([(0.6, 0.5, 0.2), (0.7, 0.5, 0.3), (0.8, 0.6, 0.1)]):
         _run_folder(tmp_path, f"deck1-reward-mddpg-seed{seed}", [0.1, m])
         _run_folder(tmp_path, f"deck1-reward-ddpg-seed{seed}", [0.1, d])
+        _run_folder(tmp_path, f"deck1-reward-dqn-seed{seed}", [0.1, q])
     env = {**os.environ, "MUJOCO_GL": "disable"}
     done = subprocess.run(
         [sys.executable, "benchmarks/learning.py", "--recipe", "deck1-reward", "--no-train", "--out", str(tmp_path)],
@@ -35,6 +36,9 @@ def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_differe
     assert "| mddpg | 3 | 100000 | 2.0 min | 100 | 70.0 % | 45.2 to 94.8 % | 30.0 % |" in out
     # differences 10, 20, 20 points: mean 16.7, sd 5.77, half-width 14.3
     assert "mddpg - ddpg: success +16.7 points, paired over seeds 0, 1, 2 (95 % interval +2.3 to +31.0 points)" in out
+    # the paper's ranking, neighbour by neighbour (A2C has no run here): DDPG - DQN = 30, 20, 50 points
+    assert "ddpg - dqn: success +33.3 points, paired over seeds 0, 1, 2 (95 % interval -4.6 to +71.3 points)" in out
+    assert "a2c" not in out.split("| arm |")[1]
     assert (tmp_path / "learning_deck1-reward.png").stat().st_size > 0
 
 
