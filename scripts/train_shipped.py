@@ -240,8 +240,9 @@ def read_report(path: Path) -> dict[str, dict[str, dict]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", default="deck1,deck2,square")
-    parser.add_argument("--algos", default=",".join(SHIPPED_ALGOS),
-                        help=f"agents to ship (default all: {','.join(SHIPPED_ALGOS)})")
+    parser.add_argument("--algos", default=None,
+                        help=f"agents to ship (default all: {','.join(SHIPPED_ALGOS)}; with --evaluate-only, all "
+                             "that are shipped)")
     parser.add_argument("--steps", type=int, default=None,
                         help="training steps for every agent (default: the scene's recipe)")
     parser.add_argument("--seeds", default=None,
@@ -265,7 +266,7 @@ def main() -> None:
     for item in args.set:
         k, _, v = item.partition("=")
         fields[k] = json.loads(v)
-    algos = args.algos.split(",")
+    algos = args.algos.split(",") if args.algos else list(SHIPPED_ALGOS)
     unknown = sorted(set(algos) - set(SHIPPED_ALGOS))
     if unknown:
         raise SystemExit(f"unknown agents {unknown}; expected some of {', '.join(SHIPPED_ALGOS)}")
@@ -287,6 +288,9 @@ def main() -> None:
     for scene in args.scenes.split(","):
         for algo in algos:
             dest = TRAINED_DIR / f"{scene}_{algo}.npz"
+            if args.evaluate_only and not args.algos and not dest.exists():
+                print(f"{scene} {algo}: not shipped, not measured", flush=True)
+                continue
             if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}):
                 print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
                 continue
