@@ -92,12 +92,17 @@ def main() -> None:
                     raise SystemExit(str(err)) from err
                 resume = (run / ("model.zip" if isinstance(cfg, dict) else "checkpoint.pt")).exists()
                 print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
-                if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
-                    from training.baselines import train_baseline
+                from training.checkpoints import CheckpointError
 
-                    train_baseline(**cfg, out=run, resume=resume)
-                else:
-                    Trainer(cfg, run, resume=resume).train()
+                try:
+                    if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
+                        from training.baselines import train_baseline
+
+                        train_baseline(**cfg, out=run, resume=resume)
+                    else:
+                        Trainer(cfg, run, resume=resume).train()
+                except (ConfigError, CheckpointError) as err:
+                    raise SystemExit(f"{run}: {err}") from err
             if not (run / "eval.csv").exists() or not read_eval(run):
                 print(f"{run}: no evaluation yet, left out", flush=True)
                 continue
@@ -129,7 +134,9 @@ def main() -> None:
             f"{100 * row['success']:.1f} % | {spread} | {100 * row['collision']:.1f} % | "
             f"{100 * row['timeout']:.1f} % | {row['reward']:.1f} |"
         )
-    for with_prediction, without in ablation_pairs(list(curves)):
+    for with_prediction, without in ablation_pairs(arms):
+        if with_prediction not in summary or without not in summary:
+            continue  # (an arm with no evaluation yet)
         a, b = summary[with_prediction], summary[without]
         both = [s for s in a["seeds"] if s in b["seeds"]]
         diff = [a["success_each"][a["seeds"].index(s)] - b["success_each"][b["seeds"].index(s)] for s in both]

@@ -117,6 +117,14 @@ def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(caps
          '[sb3.a2c]\nn_steps = 0\n', "\\[sb3.a2c\\]: n_steps: must be at least 1"),
         ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\nseed = 3\n',
          "\\[sb3\\]: seed is set by the recipe"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\n'
+         '[sb3.a2c]\nsteps = 5\n', "\\[sb3.a2c\\]: steps belong\\(s\\) in \\[sb3\\]"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\ndqn = 5\n',
+         "\\[sb3\\] dqn: expected a table of dqn fields"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\nsteps = 1\neval_every = 1\neval_episodes = 1\n'
+         "num_envs = 10\n", "num_envs: at most 9"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\nalgo = "mddpg-reward"\n[sb3]\nsteps = 1\neval_every = 1\n'
+         "eval_episodes = 1\n", "\\[ddpg\\]: algo set by the run"),
     ],
 )
 def test_a_bad_recipe_file_is_refused_naming_the_problem(tmp_path, text, message):
@@ -150,3 +158,10 @@ def test_a_recipe_gives_dqn_and_a2c_their_shared_and_their_own_fields(tmp_path, 
     assert main(["train", "--recipe", str(path), "--algo", "a2c", "--seed", "1", "--print-config"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert (printed["scene"], printed["num_envs"], printed["n_steps"], printed["total_steps"]) == ("deck2", 4, 8, 5000)
+
+
+def test_a_training_config_takes_training_algorithms_not_shipped_agent_names():
+    from training.config import make_config
+
+    with pytest.raises(ConfigError, match="algo: expected one of mddpg, ddpg, got 'mddpg-reward'"):
+        make_config("reward", algo="mddpg-reward")

@@ -74,6 +74,8 @@ class BaselineConfig:
         hints = typing.get_type_hints(type(self))
         for f in dataclasses.fields(self):
             setattr(self, f.name, field_value(f.name, getattr(self, f.name), hints[f.name]))
+        if self.num_envs > 9:  # training.config.train_episode_seed's streams
+            raise ConfigError(f"num_envs: at most 9, got {self.num_envs!r}")
         if not 0 <= self.seed < 4_000:
             raise ConfigError(f"seed: must lie in [0, 4000) (episode seeds must fit in 32 bits), got {self.seed!r}")
         for name in ("total_steps", "num_envs", "eval_episodes", "log_every", *self._at_least_one):

@@ -26,8 +26,9 @@ from deck_sim import agents
 from deck_sim.evaluation import TRAIN_SEED_BASE
 from deck_sim.policies.regimes import config_regime
 
-ALGOS = agents.names(trainer="ddpg")
-"""The agents ``training.ddpg`` trains (``deck_sim.agents``); the others go through ``training.baselines``."""
+ALGOS = tuple(a for a in agents.ALGOS if agents.AGENTS[a].trainer == "ddpg")
+"""The training algorithms of ``training.ddpg`` (``mddpg``, ``ddpg``); the others go through
+``training.baselines``."""
 NOISES = ("gaussian", "ou")
 ACTOR_ARCHS = ("mlp", "sets")
 

@@ -33,11 +33,13 @@ def shipped_policy_path(algo: str, scene: str) -> Path:
     path = TRAINED_DIR / f"{scene}_{algo}.npz"
     if not path.exists():
         shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
+        how = "pass an actor file"
+        if algo in agents.LEARNED:
+            how = (f"train one with python scripts/train_shipped.py --scenes {scene} --algos {algo} (one seed: "
+                   f"deck-sim train --recipe {agents.recipe_name(algo, scene)} --algo {agents.training_algo(algo)}; "
+                   "the scenes with recipes: training/recipes), or pass an actor file")
         raise PolicyFileError(
-            f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); "
-            f"train one with python scripts/train_shipped.py --scenes {scene} --algos {algo} (one seed: deck-sim "
-            f"train --recipe {agents.recipe_name(algo, scene)} --algo {agents.training_algo(algo)}), or pass an "
-            "actor file"
+            f"no shipped {algo} policy for scene {scene!r} (shipped: {', '.join(shipped) or 'none'}); {how}"
         )
     return path
 

@@ -103,6 +103,10 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
         raise ConfigError(f"{path.name}: scene: expected a scene name, got {data.get('scene')!r}")
     ddpg = dict(data.get("ddpg", {}))
     sb3 = dict(data.get("sb3", {}))
+    fixed = sorted({"algo", "scene", "seed"} & set(ddpg))
+    if fixed:
+        raise ConfigError(f"{path.name} [ddpg]: {', '.join(fixed)} set by the run (--algo, the recipe's scene, "
+                          "seeds), not by the recipe")
     recipe = Recipe(
         name=path.stem,
         scene=data["scene"],
@@ -118,6 +122,13 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     from training.baseline_config import baseline_config
 
     for algo in ("dqn", "a2c"):  # every [sb3] field is checked now, not at training time
+        own = sb3.get(algo, {})
+        if not isinstance(own, dict):
+            raise ConfigError(f"{path.name} [sb3] {algo}: expected a table of {algo} fields, got {own!r}")
+        budget = sorted(set(own) & {"seeds", *BASELINE_FIELDS})
+        if budget:
+            raise ConfigError(f"{path.name} [sb3.{algo}]: {', '.join(budget)} belong(s) in [sb3], the same for DQN "
+                              "and A2C")
         fields = {k: v for k, v in recipe.baseline_kwargs(algo).items() if k not in BASELINE_FIELDS}
         for key in ("algo", "scene", "seed", "total_steps"):
             if key in fields:
