@@ -214,6 +214,17 @@ class ReplayBuffer:
 
     def sample_rows(self, batch_size: int, rng: np.random.Generator, demo_fraction: float = 0.0) -> np.ndarray:
         """The rows ``sample`` takes (the same draws from ``rng``)."""
+        n_demo, demo_rows = self._demo_rows(batch_size, rng, demo_fraction)
+        agent_rows = (
+            rng.integers(self.n_demo, self.size, batch_size - n_demo)
+            if batch_size > n_demo
+            else np.zeros(0, dtype=np.int64)
+        )
+        return np.concatenate([demo_rows, agent_rows])
+
+    def _demo_rows(self, batch_size: int, rng: np.random.Generator, demo_fraction: float) -> tuple[int, np.ndarray]:
+        """How many of ``batch_size`` rows come from the demonstrations (``demo_fraction`` of them when there are
+        both kinds, all when there are only demonstrations) and those rows, drawn uniformly."""
         if self.size == 0:
             raise RuntimeError("cannot sample from an empty replay buffer")
         n_demo = 0
@@ -221,15 +232,7 @@ class ReplayBuffer:
             n_demo = int(round(batch_size * demo_fraction))
         elif self.n_demo:
             n_demo = batch_size
-        rows = np.concatenate(
-            [
-                rng.integers(0, self.n_demo, n_demo) if n_demo else np.zeros(0, dtype=np.int64),
-                rng.integers(self.n_demo, self.size, batch_size - n_demo)
-                if batch_size > n_demo
-                else np.zeros(0, dtype=np.int64),
-            ]
-        )
-        return rows
+        return n_demo, rng.integers(0, self.n_demo, n_demo) if n_demo else np.zeros(0, dtype=np.int64)
 
     def prioritised_rows(
         self, batch_size: int, rng: np.random.Generator, demo_fraction: float = 0.0, beta: float = 0.4
@@ -239,14 +242,7 @@ class ReplayBuffer:
         rows, divided by the batch's largest (demonstrations weigh 1)."""
         if not self.prioritised:
             raise RuntimeError("prioritised_rows needs a buffer made with prioritised=True")
-        if self.size == 0:
-            raise RuntimeError("cannot sample from an empty replay buffer")
-        n_demo = 0
-        if self.n_demo and self.n_agent:
-            n_demo = int(round(batch_size * demo_fraction))
-        elif self.n_demo:
-            n_demo = batch_size
-        demo_rows = rng.integers(0, self.n_demo, n_demo) if n_demo else np.zeros(0, dtype=np.int64)
+        n_demo, demo_rows = self._demo_rows(batch_size, rng, demo_fraction)
         k = batch_size - n_demo
         weights = np.ones(batch_size, dtype=np.float32)
         if k == 0:
