@@ -51,17 +51,9 @@ class RayEnvs(Runner):
         super().__init__(n, workers)
         ray = require_ray()
         self._ray = ray
-        self._started = False
-        if not ray.is_initialized():
-            from deck_sim.evaluation.harness import check_ray_address
+        from deck_sim.evaluation.harness import init_ray
 
-            os.environ.setdefault("RAY_AUTH_MODE", "disabled")
-            if address:
-                check_ray_address(address)
-                ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-            self._started = True
+        self._started = init_ray(workers, address)
         cpus = ray.cluster_resources().get("CPU", 0)
         if cpus < workers:
             self.close()

@@ -320,15 +320,7 @@ def _ray(units: Sequence[Unit], workers: int, address: str | None) -> Iterator[l
         import ray
     except ImportError as err:
         raise EvalError("backend 'ray' needs Ray: pip install 'deck-sim[ray]' (or pip install ray)") from err
-    started = False
-    if not ray.is_initialized():
-        os.environ.setdefault("RAY_AUTH_MODE", "disabled")
-        if address:
-            check_ray_address(address)
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        started = True
+    started = init_ray(workers, address)
     try:
         remote = ray.remote(num_cpus=1)(run_unit)
         pending = [remote.remote(u) for u in units]
@@ -343,6 +335,23 @@ def _ray(units: Sequence[Unit], workers: int, address: str | None) -> Iterator[l
 
 RAY_CONNECT_TIMEOUT_S = 10.0
 """How long ``check_ray_address`` waits for a Ray head to accept a connection."""
+
+
+def init_ray(workers: int, address: str | None) -> bool:
+    """Connect this process to Ray unless it is already: to the cluster at ``address`` (checked first,
+    ``check_ray_address``) or to a local Ray started with ``workers`` CPUs. Returns whether this call started or
+    joined it (the caller then shuts it down when done)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+    if address:
+        check_ray_address(address)
+        ray.init(address=address, log_to_driver=False)
+    else:
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    return True
 
 
 def check_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> None:
