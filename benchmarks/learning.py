@@ -191,13 +191,10 @@ def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.N
     ``--eval-episodes`` over it when given); else the named arm's ``TrainConfig`` (``training.config.arm_config``)."""
     if recipe is None:
         return arm_config(arm, scene, args.steps or 40_000, seed, args.eval_every or 5_000, args.eval_episodes or 50)
-    if arm in ("dqn", "a2c"):
-        given = {"steps": args.steps, "eval_every": args.eval_every, "eval_episodes": args.eval_episodes}
-        kwargs = {**recipe.baseline_kwargs(arm), **{k: v for k, v in given.items() if v is not None}}
-        return {"algo": arm, "scene": scene, "seed": seed, **kwargs}
-    given = {"total_steps": args.steps, "eval_every": args.eval_every, "checkpoint_every": args.eval_every,
-             "eval_episodes": args.eval_episodes}
-    return recipe.config(arm, seed, **{k: v for k, v in given.items() if v is not None})
+    given = {"eval_every": args.eval_every, "eval_episodes": args.eval_episodes}
+    if arm not in ("dqn", "a2c"):  # (MDDPG and DDPG checkpoint where they evaluate)
+        given["checkpoint_every"] = args.eval_every
+    return recipe.run(arm, seed, args.steps, **{k: v for k, v in given.items() if v is not None})
 
 
 PAPER_ORDER = ("mddpg", "ddpg", "dqn", "a2c")

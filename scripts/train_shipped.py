@@ -168,10 +168,8 @@ def run_config(scene: str, algo: str, steps: int, seed: int, fields: dict[str, A
     """What one run of the shipped ``algo`` of ``scene`` trains with: its recipe's ``TrainConfig`` (MDDPG, DDPG;
     ``deck-sim train --recipe <recipe> --algo <training algo> --seed <seed> --print-config`` prints the same) or the
     keyword arguments of ``train_baseline`` (DQN, A2C), ``steps`` and ``fields`` applied."""
-    recipe, trained = load_recipe(recipe_name(algo, scene)), training_algo(algo)
-    if algo in DDPG_ALGOS:
-        return recipe.config(trained, seed, **{**fields, "total_steps": steps})
-    return {"algo": trained, "scene": scene, "seed": seed, **recipe.baseline_kwargs(trained), "steps": steps}
+    return load_recipe(recipe_name(algo, scene)).run(training_algo(algo), seed, steps,
+                                                     **(fields if algo in DDPG_ALGOS else {}))
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:

@@ -167,15 +167,13 @@ def _plan_run(args: argparse.Namespace, out: Path) -> tuple[Any, dict[str, Any] 
     algo = args.algo or "mddpg"
     seed = 0 if args.seed is None else args.seed
     scene = recipe.scene if recipe is not None else args.scene or "deck1"
+    if recipe is not None:
+        plan = recipe.run(algo, seed, args.steps, **changes)
+        return (None, plan) if isinstance(plan, dict) else (plan, None)
     if agents.AGENTS[algo].trainer == "sb3":
-        baseline = recipe.baseline_kwargs(algo) if recipe is not None else {"steps": None}
-        if args.steps is not None:
-            baseline["steps"] = args.steps
-        return None, {"algo": algo, "scene": scene, "seed": seed, **baseline, **changes}
+        return None, {"algo": algo, "scene": scene, "seed": seed, "steps": args.steps, **changes}
     if args.steps is not None:
         changes["total_steps"] = args.steps
-    if recipe is not None:
-        return recipe.config(algo, seed, **changes), None
     return make_config(args.preset or "tuned", algo=algo, scene=scene, seed=seed, **changes), None
 
 

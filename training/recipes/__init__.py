@@ -72,6 +72,16 @@ class Recipe:
         return {**shared, **self.sb3_fields.get(algo, {})}
 
 
+    def run(self, algo: str, seed: int, steps: int | None = None, **fields: Any) -> TrainConfig | dict[str, Any]:
+        """What one run of ``algo`` trains with: MDDPG and DDPG its ``TrainConfig`` (``config``), DQN and A2C the
+        keyword arguments of ``training.baselines.train_baseline`` (``baseline_kwargs`` with ``algo``, ``scene``
+        and ``seed``); ``steps`` (None: the recipe's) and ``fields`` applied over the recipe."""
+        if _trainer(algo) == "ddpg":
+            return self.config(algo, seed, **fields, **({} if steps is None else {"total_steps": steps}))
+        kwargs = {"algo": algo, "scene": self.scene, "seed": seed, **self.baseline_kwargs(algo), **fields}
+        return kwargs if steps is None else {**kwargs, "steps": steps}
+
+
 def _trainer(algo: str) -> str:
     if algo not in agents.ALGOS:
         raise ConfigError(f"algo: expected one of {', '.join(agents.ALGOS)}, got {algo!r}")
