@@ -18,7 +18,12 @@ arm whose run folder already holds a finished run is read back, not retrained (d
 with a checkpoint is resumed. ``--no-train`` reports the runs as they stand (an unfinished run by its latest
 evaluation) and trains nothing.
 
-Beside each arm's mean over seeds, the table gives the 95 % interval of its success over seeds (Student's t, clipped
+The seed-500 stream also picks each run's best actor, which flatters it; so with ``--recipe`` (or ``--held-out N``)
+a second table measures the actor each run ships on the held-out episodes of ``docs/results.md`` (seeds 100000
++ i; ``training.heldout``, cached in the run folder as ``heldout.json``), with success, collisions, path ratio and
+turning angle: the figures the regimes and the paper's tables are compared by.
+
+Beside each arm's mean over seeds, each table gives the 95 % interval of its success over seeds (Student's t, clipped
 to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
 for each neighbour pair of the paper's ranking MDDPG > DDPG > DQN > A2C in recipe mode, it prints the difference of
 their success, paired by seed, with its 95 % interval over the seeds both have.
@@ -40,6 +45,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
+from deck_sim.evaluation import DEFAULT_SEED  # noqa: E402
 from deck_sim.metrics import mean_interval  # noqa: E402
 from training.config import ConfigError, arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
@@ -65,6 +71,9 @@ def main() -> None:
     parser.add_argument("--eval-episodes", type=int, default=None, help="default 50, or the recipe's")
     parser.add_argument("--out", default="runs/learning")
     parser.add_argument("--no-train", action="store_true", help="report the runs as they stand; train nothing")
+    parser.add_argument("--held-out", type=int, default=None,
+                        help="also measure each run's shipped actor on this many held-out episodes of "
+                             "docs/results.md, cached in the run folder (default 100 with --recipe, else 0)")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
     args = parser.parse_args()
     try:
@@ -74,6 +83,8 @@ def main() -> None:
     if recipe is not None and args.scene not in (None, recipe.scene):
         raise SystemExit(f"--recipe {recipe.name} trains on {recipe.scene}; drop --scene {args.scene}")
     scene = recipe.scene if recipe is not None else (args.scene or "deck1")
+    if args.held_out is None:
+        args.held_out = 100 if recipe is not None else 0
     print(machine(torch=torch.__version__))
     arms = (args.arms or (",".join(PAPER_ORDER) if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
     if recipe is not None and not set(arms) <= set(PAPER_ORDER):
@@ -81,6 +92,7 @@ def main() -> None:
     seeds_given = [int(s) for s in args.seeds.split(",")] if args.seeds else None
     curves: dict[str, list[list[dict[str, float]]]] = {}
     seeds_of: dict[str, list[int]] = {}
+    runs_of: dict[str, list[tuple[int, Path]]] = {}
     unfinished = []
     for arm in arms:
         for seed in seeds_given or (list(recipe.seeds(arm)) if recipe else [0]):
@@ -110,6 +122,7 @@ def main() -> None:
                 unfinished.append(f"{run.name} (at step {read_eval(run)[-1]['step']:.0f})")
             curves.setdefault(arm, []).append(read_eval(run))
             seeds_of.setdefault(arm, []).append(seed)
+            runs_of.setdefault(arm, []).append((seed, run))
 
     name = f"recipe {recipe.name}" if recipe else f"scene {scene}"
     print(f"\n{name}; held-out evaluation: episodes of the seed-500 stream; last evaluation of each run")
@@ -134,19 +147,12 @@ def main() -> None:
             f"{100 * row['success']:.1f} % | {spread} | {100 * row['collision']:.1f} % | "
             f"{100 * row['timeout']:.1f} % | {row['reward']:.1f} |"
         )
-    for with_prediction, without in ablation_pairs(arms):
-        if with_prediction not in summary or without not in summary:
-            continue  # (an arm with no evaluation yet)
-        a, b = summary[with_prediction], summary[without]
-        both = [s for s in a["seeds"] if s in b["seeds"]]
-        diff = [a["success_each"][a["seeds"].index(s)] - b["success_each"][b["seeds"].index(s)] for s in both]
-        if not both:
-            continue
-        m, lo, hi = mean_interval(diff)
-        spread = (f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points"
-                  if len(both) > 1 else "one seed")
-        print(f"{with_prediction} - {without}: success {100 * m:+.1f} points, paired over seeds "
-              f"{', '.join(map(str, both))} ({spread})")
+    print_differences(summary, arms)
+    if args.held_out:
+        held = held_out_table(runs_of, args.held_out)
+        print_differences(held, arms)
+        for arm, row in held.items():
+            summary[arm]["held_out"] = row
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / f"summary_{recipe.name if recipe else scene}.json").write_text(json.dumps(summary, indent=2))
 
@@ -195,6 +201,60 @@ def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.N
     if arm not in ("dqn", "a2c"):  # (MDDPG and DDPG checkpoint where they evaluate)
         given["checkpoint_every"] = args.eval_every
     return recipe.run(arm, seed, args.steps, **{k: v for k, v in given.items() if v is not None})
+
+
+def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
+    """For each pair of ``ablation_pairs``, the difference of success paired by seed, with its 95 % interval over
+    the seeds both arms have (``summary[arm]``: ``seeds`` and ``success_each``)."""
+    for with_prediction, without in ablation_pairs(arms):
+        if with_prediction not in summary or without not in summary:
+            continue  # (an arm with no evaluation yet)
+        a, b = summary[with_prediction], summary[without]
+        both = [s for s in a["seeds"] if s in b["seeds"]]
+        if not both:
+            continue
+        diff = [a["success_each"][a["seeds"].index(s)] - b["success_each"][b["seeds"].index(s)] for s in both]
+        m, lo, hi = mean_interval(diff)
+        spread = (f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points"
+                  if len(both) > 1 else "one seed")
+        print(f"{with_prediction} - {without}: success {100 * m:+.1f} points, paired over seeds "
+              f"{', '.join(map(str, both))} ({spread})")
+
+
+def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) -> dict[str, dict]:
+    """Print and return each arm's runs measured on ``episodes`` held-out episodes of ``docs/results.md``
+    (``training.heldout.held_out``: the actor each run ships, evaluated once and cached in the run folder): the
+    mean success over seeds with its 95 % interval over seeds, each seed's, collisions, path ratio and turning."""
+    from training.heldout import HeldOutError, held_out
+
+    print(f"\nheld-out evaluation: {episodes} episodes of docs/results.md (seeds {DEFAULT_SEED}-"
+          f"{DEFAULT_SEED + episodes - 1}), the actor each run ships (its best seed-500 evaluation, or its final fit)")
+    print("| arm | seeds | actor at step | success | success, 95 % over seeds | each seed | collision | "
+          "path / shortest | turning deg |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    table = {}
+    for arm, runs in runs_of.items():
+        records, seeds = [], []
+        for seed, run in runs:
+            try:
+                records.append(held_out(run, episodes))
+                seeds.append(seed)
+            except HeldOutError as err:
+                print(f"{err}; left out", flush=True)
+        if not records:
+            continue
+        each = [r["success"] for r in records]
+        m, lo, hi = mean_interval(each)
+        row = {"seeds": seeds, "success_each": each, "success": m, "success_lo": lo, "success_hi": hi,
+               "selected_at_step": [r["selected_at_step"] for r in records]}
+        for k in ("collision", "timeout", "path_ratio", "turning_deg", "reward"):
+            row[k] = float(np.nanmean([r[k] for r in records]))
+        table[arm] = row
+        spread = f"{max(0.0, 100 * lo):.1f} to {min(100.0, 100 * hi):.1f} %" if len(records) > 1 else "one seed"
+        print(f"| {arm} | {', '.join(map(str, seeds))} | {', '.join(str(s) for s in row['selected_at_step'])} | "
+              f"{100 * m:.1f} % | {spread} | {', '.join(f'{100 * x:.0f}' for x in each)} | "
+              f"{100 * row['collision']:.1f} % | {row['path_ratio']:.3f} | {row['turning_deg']:.0f} |")
+    return table
 
 
 PAPER_ORDER = ("mddpg", "ddpg", "dqn", "a2c")

@@ -75,6 +75,8 @@ from deck_sim.policies import (  # noqa: E402
 )
 from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
+from training.heldout import held_out as held_out_record  # noqa: E402
+from training.heldout import held_out_file  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
@@ -97,7 +99,8 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
 
 
 def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str) -> Path:
-    """Copy each run's held-out evaluation log (``eval.csv``) and ``config.json`` to ``deck_sim/trained/logs/
+    """Copy each run's held-out evaluation log (``eval.csv``), ``config.json`` and its actor's measurements on
+    ``docs/results.md``'s episodes (``heldout_<episodes>.json``, ``training.heldout``) to ``deck_sim/trained/logs/
     <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
     learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
     further seeds) in ``seed<seed>/`` below it (``member_logs``)."""
@@ -109,7 +112,10 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str) -
             shutil.rmtree(old)
     for i, (run, seed) in enumerate(zip(runs, seeds, strict=True)):
         folder = logs if i == 0 else logs / f"seed{seed}"
-        for name in ("eval.csv", "config.json"):
+        names = ["eval.csv", "config.json", *(f.name for f in sorted(run.glob(held_out_file("*"))))]
+        for stale in folder.glob(held_out_file("*")):  # an earlier run's measurements
+            stale.unlink()
+        for name in names:
             (folder / name).unlink(missing_ok=True)
             if (run / name).exists():
                 folder.mkdir(parents=True, exist_ok=True)
@@ -248,6 +254,9 @@ def main() -> None:
                              "the mean action of their actors (MDDPG and DDPG only)")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders, <out>/<scene>-<algo>-seed<seed>")
+    parser.add_argument("--episodes-per-run", type=int, default=100,
+                        help="episodes of docs/results.md on which each MDDPG or DDPG run's actor is measured "
+                             "(training.heldout; shipped as heldout.json beside the actor's logs)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
     mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")
@@ -305,6 +314,8 @@ def main() -> None:
         else:
             for seed, run in zip(seeds, runs, strict=True):
                 train(run, scene, algo, steps, seed, fields)
+                if algo in DDPG_ALGOS:  # each seed on docs/results.md's episodes, shipped beside the actor
+                    held_out_record(run, args.episodes_per_run)
             ship(runs, dest)
             ship_logs(runs, seeds, scene, algo)
         t0 = time.perf_counter()

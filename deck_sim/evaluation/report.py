@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from deck_sim.agents import AGENTS
 from deck_sim.metrics import OUTCOMES, mean_interval, rate_interval
 
 if TYPE_CHECKING:
@@ -101,7 +102,9 @@ def _num(s: dict, key: str, spec: str = ".1f") -> str:
 
 
 def _paper(table: str, scene: str, agent: str, spec: str) -> str:
-    v = PAPER[table].get(scene, {}).get(agent)
+    # an agent learnt by the paper's protocol under another name (``mddpg-reward``) stands beside its algorithm's
+    info = AGENTS.get(agent)
+    v = PAPER[table].get(scene, {}).get(info.algo if info is not None and info.algo else agent)
     if v is None:
         return "-"
     return f"{100 * v:.0f}" if table == "success" else f"{v:{spec}}"

@@ -1,0 +1,45 @@
+"""``training.heldout.held_out``: a run's shipped actor on the held-out episodes of ``docs/results.md``, measured
+once per actor and cached in the run folder."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate
+from deck_sim.policies import TRAINED_DIR
+from training.heldout import HeldOutError, held_out, held_out_file
+
+
+def _run(tmp_path, actor: str = "deck1_ddpg.npz"):
+    run = tmp_path / "run"
+    run.mkdir(exist_ok=True)
+    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": 0}))
+    shutil.copyfile(TRAINED_DIR / actor, run / "actor_best.npz")
+    return run
+
+
+def test_held_out_matches_deck_sim_eval_and_is_cached_per_actor(tmp_path):
+    run = _run(tmp_path)
+    first = held_out(run, episodes=2, workers=1)
+    direct = evaluate(EvalConfig(agents=(f"x={run / 'actor_best.npz'}",), scenes=("deck1",), episodes=2,
+                                 backend="serial", record="none")).summary("deck1", "x")
+    assert first["success"] == direct["goal_rate"] and first["collision"] == direct["collision_rate"]
+    assert first["episodes"] == 2 and first["seed"] == DEFAULT_SEED and first["scene"] == "deck1"
+    assert json.loads((run / held_out_file(2)).read_text())["actor_sha256"] == first["actor_sha256"]
+    # the same actor again: the cached record, not a new evaluation (same wall time to the bit)
+    assert held_out(run, episodes=2, workers=1) == first
+    # another actor in the folder: measured again
+    shutil.copyfile(TRAINED_DIR / "deck1_mddpg.npz", run / "actor_best.npz")
+    assert held_out(run, episodes=2, workers=1)["actor_sha256"] != first["actor_sha256"]
+
+
+def test_a_folder_without_config_or_actor_is_refused_by_name(tmp_path):
+    with pytest.raises(HeldOutError, match="not a training run folder"):
+        held_out(tmp_path, episodes=1)
+    run = _run(tmp_path)
+    (run / "actor_best.npz").unlink()
+    with pytest.raises(HeldOutError, match="no actor to measure yet"):
+        held_out(run, episodes=1)

@@ -1,0 +1,71 @@
+"""``scripts/make_results.py``'s lead section: the reward-alone runs, seed by seed on the held-out episodes, as
+means with intervals over seeds, the paired prediction ablation and the targets, read from run folders."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from deck_sim.policies import TRAINED_DIR
+from training.heldout import held_out_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def make_results():
+    spec = importlib.util.spec_from_file_location("make_results", ROOT / "scripts" / "make_results.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps: int = 1_000_000) -> None:
+    """A run folder of ``deck1-reward`` whose actor's held-out record is already cached (no evaluation)."""
+    run = out / f"deck1-reward-{algo}-seed{seed}"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": seed, "total_steps": 1_000_000}))
+    (run / "eval.csv").write_text(f"step,wall_s,episodes,success\n{steps},600.0,100,0.5\n")
+    shutil.copyfile(TRAINED_DIR / f"deck1_{algo}.npz", run / "actor_best.npz")
+    digest = hashlib.sha256((run / "actor_best.npz").read_bytes()).hexdigest()
+    record = {"actor_sha256": digest, "episodes": 100, "seed": 100_000, "success": success, "collision": 1 - success,
+              "path_ratio": 1.1, "turning_deg": turning, "selected_at_step": steps}
+    (run / held_out_file(100)).write_text(json.dumps(record))
+
+
+def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make_results):
+    for seed, (m, d) in enumerate([(0.9, 0.8), (0.92, 0.8), (0.94, 0.82)]):
+        _run(tmp_path, "mddpg", seed, m, 200.0)
+        _run(tmp_path, "ddpg", seed, d, 150.0, steps=800_000 if seed == 2 else 1_000_000)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2] and set(runs) == {"mddpg", "ddpg"}
+    assert [r["finished"] for r in runs["ddpg"]] == [True, True, False]
+    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
+    # MDDPG: 90, 92, 94 -> mean 92, sd 2, t(2) 4.303 -> +- 4.97
+    assert "| deck1 | mddpg | 3: 0, 1, 2 (1,000,000) | 30 min | 92.0 (87.0 to 97.0) | 90, 92, 94 | 98 |" in text
+    assert "still training" in text.split("| deck1 | ddpg |")[1].splitlines()[0]
+    # differences 10, 12, 12 points: mean 11.3, sd 1.15, half-width 2.87
+    assert "mddpg - ddpg, success paired over seeds 0, 1, 2: +11.3 points, mddpg ahead (95 % interval +8.5 to " \
+           "+14.2 points)" in text
+    assert "MDDPG turns more than DDPG (200 against 150 deg" in text
+    targets = "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
+    assert "on deck1: 92.0 % (mean of 3 seed(s)) against the target of 90 % and the paper's 98 %: met." in targets
+    assert "MDDPG from the reward alone on deck2: no run yet" in targets
+    runs["mddpg"][2]["finished"] = False  # a seed still training: no verdict yet
+    assert "not decided: 3 seed(s), 2 finished" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
+
+
+class _NoShipped:
+    """Evaluation results with no shipped agent in them."""
+
+    def summary(self, scene: str, agent: str) -> dict:
+        raise KeyError(agent)
+
+
+def test_a_scene_without_reward_runs_gives_nothing(tmp_path, make_results):
+    assert make_results.reward_runs("deck2", tmp_path, 100, workers=1) == {}

@@ -1,0 +1,118 @@
+"""A training run's actor measured on the held-out episodes of ``docs/results.md``, cached in the run folder.
+
+A run's own periodic evaluations (``eval.csv``) use the seed-500 stream, which also picks the run's best actor
+(``actor_best.npz``), so they flatter it. The comparisons across seeds and regimes are therefore made on another
+stream: the episodes of ``deck_sim.evaluation`` (episode ``i`` reset with seed ``DEFAULT_SEED + i``, the
+episodes of every table in ``docs/results.md``), which no training, demonstration or selection ever sees.
+
+``held_out(run)`` evaluates the actor that ``scripts/train_shipped.py`` would ship from the run
+(``training.final_fit.shipped_actor``) and writes ``heldout_<episodes>.json`` beside it. The file names the actor by its
+SHA-256, so a later call returns it without evaluating again until the actor changes (an unfinished run's
+``actor_best.npz`` does, at each better evaluation).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate, machine
+from deck_sim.rollout import git_commit
+from training.final_fit import shipped_actor
+
+
+def held_out_file(episodes: int | str) -> str:
+    """The name of the cached record of ``episodes`` held-out episodes in a run folder (``held_out``; ``"*"``: the
+    glob pattern of every count)."""
+    return f"heldout_{episodes}.json"
+
+
+class HeldOutError(RuntimeError):
+    """A run folder that cannot be measured (no config, no actor yet)."""
+
+
+def held_out(
+    run: str | os.PathLike[str], episodes: int = 100, workers: int | None = None, *, refresh: bool = False
+) -> dict[str, Any]:
+    """The run's shipped actor on ``episodes`` held-out episodes of its scene.
+
+    Args:
+        run: A ``deck-sim train`` or stable-baselines3 run folder (its ``config.json`` names the scene).
+        episodes: Episodes ``DEFAULT_SEED`` to ``DEFAULT_SEED + episodes - 1``.
+        workers: Evaluation processes (default: the CPU count).
+        refresh: Evaluate again even when the run folder holds this actor's figures.
+
+    Returns:
+        ``{"success", "collision", "timeout", "off_surface"}`` (fractions) with Wilson 95 % intervals
+        (``success_ci`` ...), ``reward``, ``path_ratio`` (path over the shortest static path) and ``turning_deg``
+        (degrees per successful episode) with Student-t 95 % intervals, and the record of what was measured:
+        ``scene``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
+        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit.
+
+    Raises:
+        HeldOutError: The folder has no ``config.json`` or no actor yet.
+    """
+    run = Path(run)
+    try:
+        config = json.loads((run / "config.json").read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        raise HeldOutError(f"{run}: not a training run folder (config.json: {err})") from None
+    actor = shipped_actor(run)
+    if not actor.exists():
+        raise HeldOutError(f"{run}: no actor to measure yet ({actor.name} appears at the run's first evaluation)")
+    digest = hashlib.sha256(actor.read_bytes()).hexdigest()
+    cache = run / held_out_file(episodes)
+    if not refresh:
+        try:
+            record = json.loads(cache.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            record = None
+        if record and (record.get("actor_sha256"), record.get("episodes"), record.get("seed")) == (
+            digest,
+            episodes,
+            DEFAULT_SEED,
+        ):
+            return record
+    scene = str(config["scene"])
+    res = evaluate(
+        EvalConfig(agents=(f"run={actor}",), scenes=(scene,), episodes=episodes, workers=workers, record="none")
+    )
+    s = res.summary(scene, "run")
+    from deck_sim.policies import load_actor
+
+    meta = load_actor(actor).meta
+    record = {
+        "scene": scene,
+        "actor": actor.name,
+        "actor_sha256": digest,
+        "selected_at_step": int(meta.get("trained_steps", -1)),
+        "episodes": episodes,
+        "seed": DEFAULT_SEED,
+        "success": s["goal_rate"],
+        "success_ci": s["goal_ci"],
+        "collision": s["collision_rate"],
+        "collision_ci": s["collision_ci"],
+        "timeout": s["timeout_rate"],
+        "timeout_ci": s["timeout_ci"],
+        "off_surface": s["off_surface_rate"],
+        "reward": s["reward"],
+        "reward_ci": s["reward_ci"],
+        "path_ratio": s["shortest_ratio"],
+        "path_ratio_ci": s["shortest_ratio_ci"],
+        "turning_deg": s["turning_deg"],
+        "turning_deg_ci": s["turning_deg_ci"],
+        "collision_partners": dict(
+            sorted(Counter(str(r["collision_partner"]) for r in res.episodes if r["outcome"] == "collision").items())
+        ),
+        "wall_s": res.wall_s,
+        "git_commit": git_commit(),
+        "machine": machine(),
+    }
+    tmp = cache.with_name(cache.name + ".tmp")
+    tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    os.replace(tmp, cache)
+    return record
