@@ -11,8 +11,8 @@ arm, with the machine; plots success and mean episode reward against environment
 
 Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
 tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. With ``--recipe
-NAME`` the arms are training algorithms (default ``mddpg,ddpg,dqn,a2c``) of that recipe file (``training.recipes``),
-with its steps, seeds and evaluations unless given (DQN and A2C: its ``[sb3]`` table), in
+NAME`` the arms are training algorithms (default all the recipe trains: ``mddpg,ddpg,dqn,a2c``) of that recipe file
+(``training.recipes``), with its steps, seeds and evaluations unless given (DQN and A2C: its ``[sb3]`` table), in
 ``--out/<recipe>-<algo>-seed<s>``: the folders of ``scripts/train_shipped.py``, so one set of runs serves both. An
 arm whose run folder already holds a finished run is read back, not retrained (delete the folder to rerun it); one
 with a checkpoint is resumed. ``--no-train`` reports the runs as they stand (an unfinished run by its latest
@@ -20,7 +20,7 @@ evaluation) and trains nothing.
 
 The seed-500 stream also picks each run's best actor, which flatters it; so with ``--recipe`` (or ``--held-out N``)
 a second table measures the actor each run ships on the held-out episodes of ``docs/results.md`` (seeds 100000
-+ i; ``training.heldout``, cached in the run folder as ``heldout.json``), with success, collisions, path ratio and
++ i; ``training.heldout``, cached in the run folder as ``heldout_<N>.json``), with success, collisions, path ratio and
 turning angle: the figures the regimes and the paper's tables are compared by.
 
 Beside each arm's mean over seeds, each table gives the 95 % interval of its success over seeds (Student's t, clipped
@@ -86,9 +86,9 @@ def main() -> None:
     if args.held_out is None:
         args.held_out = 100 if recipe is not None else 0
     print(machine(torch=torch.__version__))
-    arms = (args.arms or (",".join(PAPER_ORDER) if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
-    if recipe is not None and not set(arms) <= set(PAPER_ORDER):
-        raise SystemExit(f"--arms with --recipe: training algorithms, some of {', '.join(PAPER_ORDER)}")
+    arms = (args.arms or (",".join(recipe.algos) if recipe else "paper-ddpg,tuned-ddpg,tuned-mddpg")).split(",")
+    if recipe is not None and not set(arms) <= set(recipe.algos):
+        raise SystemExit(f"--arms with --recipe {recipe.name}: training algorithms, some of {', '.join(recipe.algos)}")
     seeds_given = [int(s) for s in args.seeds.split(",")] if args.seeds else None
     curves: dict[str, list[list[dict[str, float]]]] = {}
     seeds_of: dict[str, list[int]] = {}

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-KINDS = ("learned", "classical", "oracle", "baseline")
+KINDS = ("learned", "classical", "observer", "oracle", "baseline")
 """``learned``: an actor trained by ``deck-sim train`` (shipped per scene in ``deck_sim/trained``);
 ``classical``: a planner of ``deck_sim.control.planners`` on the MPC predictor's forecast, no training;
+``observer``: the scripted planner on what the agent's observation holds alone (no privileged state): the teacher
+of the ``planner`` training regime;
 ``oracle``: the full-knowledge scripted planner (the movers' true future): the solvability ceiling and the teacher;
 ``baseline``: a trivial reference."""
 
@@ -49,9 +51,16 @@ AGENTS: dict[str, AgentInfo] = {
         AgentInfo("mddpg-reward", "learned", "MDDPG learnt from the reward alone (the paper's protocol)", "ddpg",
                   algo="mddpg", recipe="reward"),
         AgentInfo("ddpg-reward", "learned", "DDPG learnt from the reward alone", "ddpg", algo="ddpg", recipe="reward"),
+        AgentInfo("mddpg-planner", "learned", "MDDPG taught by the scripted planner on its own observation", "ddpg",
+                  algo="mddpg", recipe="planner"),
+        AgentInfo("ddpg-planner", "learned", "DDPG taught by the scripted planner on its own observation", "ddpg",
+                  algo="ddpg", recipe="planner"),
         AgentInfo("apf", "classical", "artificial potential field"),
         AgentInfo("astar", "classical", "A* over a visibility graph with the movers' predicted sweeps"),
         AgentInfo("mpc", "classical", "CasADi/IPOPT MPC along the static shortest path"),
+        AgentInfo("scripted-observed", "observer",
+                  "the scripted planner (nose and tail checked) on the observation alone: the observed footprints "
+                  "and the MPC forecast"),
         AgentInfo("scripted", "oracle", "full-knowledge planner: shortest path, speed checked on the true future"),
         AgentInfo("scripted-body", "oracle", "the same, checking the aircraft's nose and tail on its real turn"),
         AgentInfo("random", "baseline", "uniform random actions"),
@@ -89,6 +98,11 @@ def recipe_name(agent: str, scene: str) -> str:
     return f"{scene}-{suffix}" if suffix else scene
 CLASSICAL = names("classical")
 """Classical references; they plan around the forecast of ``deck_sim.policies.REFERENCE_PREDICTOR``."""
+OBSERVERS = names("observer")
+"""Planners that read the observation alone, by name."""
+OBSERVED_FIELDS = {"episode__static_size": True, "episode__mover_size": True, "episode__obstacle_shape": True}
+"""The scene fields (``deck_sim.load`` keywords) that put every obstacle's footprint into the observation, which
+``scripted-observed`` and the ``planner`` regime's teacher plan from (``Navigate.observed_view``)."""
 ORACLES = names("oracle")
 """The full-knowledge scripted planner, by name."""
 BASELINES = names("baseline")
@@ -98,5 +112,6 @@ def policy_help() -> str:
     """One sentence for ``--help`` listing every agent by kind, and actor files."""
     return (
         f"a shipped learned policy ({', '.join(LEARNED)}), a classical reference ({', '.join(CLASSICAL)}), "
+        f"the scripted planner on the observation alone ({', '.join(OBSERVERS)}), "
         f"the full-knowledge planner ({', '.join(ORACLES)}), {' or '.join(BASELINES)}, or an actor .npz file"
     )

@@ -150,7 +150,7 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
     except ConfigError:
         return {}
     out: dict[str, list[dict]] = {}
-    for algo in REWARD_ALGOS:
+    for algo in recipe.algos:
         shipped = member_logs_by_seed(scene, f"{algo}-reward") if f"{algo}-reward" in LEARNED else {}
         for seed in recipe.seeds(algo):
             run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"

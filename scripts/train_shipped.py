@@ -9,7 +9,8 @@ For each scene and agent (``--algos``, default every learned agent of ``deck_sim
   several seeds the shipped file is an ensemble (``deck_sim.policies.EnsemblePolicy``): the seeds' actors acting
   by the mean of their actions.
 - ``mddpg-reward`` and ``ddpg-reward``: the same with the scene's reward-alone recipe,
-  ``training/recipes/<scene>-reward.toml``, in ``--out/<scene>-reward-<algo>-seed<seed>``.
+  ``training/recipes/<scene>-reward.toml``, in ``--out/<scene>-reward-<algo>-seed<seed>``; ``mddpg-planner`` and
+  ``ddpg-planner`` with ``<scene>-planner.toml`` (taught by the planner on the agent's own observation).
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
   ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
   (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
@@ -84,7 +85,9 @@ HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
 """The agents trained by ``training.ddpg`` (MDDPG, DDPG); the others by stable-baselines3."""
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C",
-          "mddpg-reward": "MDDPG (reward alone)", "ddpg-reward": "DDPG (reward alone, no prediction)"}
+          "mddpg-reward": "MDDPG (reward alone)", "ddpg-reward": "DDPG (reward alone, no prediction)",
+          "mddpg-planner": "MDDPG (planner on its observation)",
+          "ddpg-planner": "DDPG (planner on its observation, no prediction)"}
 PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
 README_MARKERS = ("<!-- shipped-table: start (written by scripts/train_shipped.py) -->", "<!-- shipped-table: end -->")
 """The project README's shipped-policies table lies between these two lines; ``write_readme`` rewrites it from
@@ -385,7 +388,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "Weights-only actors (`deck_sim.policies.LearnedPolicy`, numpy alone; `load_actor` reads them), written by",
         "`python scripts/train_shipped.py`; this page is written by that script too. MDDPG and DDPG are",
         "`training.loop.Trainer` runs of the recipe in the table (`training/recipes/<scene>.toml`, from the reward",
-        "alone `<scene>-reward.toml`; DDPG: the same",
+        "alone `<scene>-reward.toml`, from the planner on the agent's observation `<scene>-planner.toml`; DDPG: the",
+        "same",
         "agent, recipe, seeds and budget without the MPC prediction), one run per training seed; with several seeds",
         "the file holds each run's actor and acts by the mean of their actions (`deck_sim.policies.EnsemblePolicy`).",
         "DQN and A2C are stable-baselines3 runs",

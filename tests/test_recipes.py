@@ -31,8 +31,19 @@ def _without_notes(config: dict) -> dict:
     return {k: v for k, v in json.loads(json.dumps(config)).items() if k != "extra"}
 
 
-def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe():
-    assert recipe_names() == sorted([*SCENES, *(f"{s}-reward" for s in SCENES)])
+def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe_and_the_decks_a_planner_recipe():
+    planner = ("deck1-planner", "deck2-planner")
+    assert recipe_names() == sorted([*SCENES, *(f"{s}-reward" for s in SCENES), *planner])
+    for name in planner:
+        recipe = load_recipe(name)
+        assert recipe.algos == ("mddpg", "ddpg")  # taught agents only: DQN and A2C learn from the reward
+        with pytest.raises(ConfigError, match="trains MDDPG and DDPG only"):
+            recipe.baseline_kwargs("dqn")
+        taught = load_recipe(recipe.scene).config("mddpg", 0).to_dict()
+        mine = recipe.config("mddpg", 0).to_dict()
+        # the full-knowledge teacher's recipe, with what the planner reads added to the observation
+        assert {k for k in taught if taught[k] != mine[k]} <= {"teacher_view", "scene_overrides", "extra", "seeds"}
+        assert mine["scene_overrides"] == {**taught["scene_overrides"], **mine["scene_overrides"]}
     for scene in SCENES:
         assert load_recipe(scene).scene == load_recipe(f"{scene}-reward").scene == scene
         for agent in ("mddpg-reward", "ddpg-reward"):
@@ -65,7 +76,7 @@ def test_the_shipped_mddpg_and_ddpg_are_runs_of_their_recipe(scene):
 @pytest.mark.parametrize(
     ("scene", "algo", "seed"),
     [("deck1", "mddpg", 1), ("deck2", "ddpg", 0), ("square", "dqn", 0), ("deck1", "mddpg-reward", 2),
-     ("deck2", "ddpg-reward", 0)],
+     ("deck2", "ddpg-reward", 0), ("deck1", "ddpg-planner", 1)],
 )
 def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
     recipe = recipe_name(algo, scene)
@@ -78,7 +89,8 @@ def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
     if isinstance(planned, TrainConfig):
         assert printed == json.loads(json.dumps({**planned.to_dict(), "regime": planned.regime}))
         assert printed["extra"]["recipe"] == recipe
-        assert printed["regime"] == ("reward" if algo.endswith("-reward") else "oracle-teacher")
+        regime = {"reward": "reward", "planner": "planner"}.get(algo.rpartition("-")[2], "oracle-teacher")
+        assert printed["regime"] == regime
     else:  # the keywords of train_baseline, as the config it builds from them
         from training.baseline_config import baseline_config
 
@@ -97,14 +109,14 @@ def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(caps
         assert main(["train", "--recipe", "deck1", *clash, "--print-config"]) == 2
         assert f"drop {clash[0]}" in capsys.readouterr().err
     assert main(["train", "--recipe", "nowhere", "--print-config"]) == 2
-    assert ("unknown recipe 'nowhere'; known recipes: deck1, deck1-reward, deck2, deck2-reward, square, "
-            "square-reward") in capsys.readouterr().err
+    assert ("unknown recipe 'nowhere'; known recipes: deck1, deck1-planner, deck1-reward, deck2, deck2-planner, "
+            "deck2-reward, square, square-reward") in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n', "missing field\\(s\\) steps, eval_every, eval_episodes"),
+        ('scene = "deck1"\n[ddpg]\ntotal_steps = 10\n[sb3]\n', "missing field\\(s\\) steps, eval_every, eval_episodes"),
         ('scene = "deck1"\nteam = 3\n', "unknown key\\(s\\) team"),
         ('[ddpg]\ntotal_steps = 10\n', "scene: expected a scene name"),
         ('scene = "deck1"\n[ddpg]\nseeds = [0, 0]\n', "\\[ddpg\\] seeds: each seed once"),

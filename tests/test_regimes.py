@@ -67,8 +67,8 @@ def test_every_shipped_actor_records_a_regime(algo):
         if path.exists():
             regime = actor_regime(load_actor(path).meta)
             assert regime in REGIMES
-            if AGENTS[algo].recipe == "reward":  # the name says the regime
-                assert regime == "reward", (scene, algo)
+            if AGENTS[algo].recipe in ("reward", "planner"):  # the name says the regime
+                assert regime == AGENTS[algo].recipe, (scene, algo)
 
 
 def test_deck_sim_run_says_what_a_learned_policy_learnt_from(tmp_path, capsys):
@@ -83,3 +83,72 @@ def test_deck_sim_run_says_what_a_learned_policy_learnt_from(tmp_path, capsys):
                  "--out", str(out2)]) == 0
     assert "learnt from" not in capsys.readouterr().out
     assert json.loads((out2 / "summary.json").read_text())["regime"] is None
+
+
+@given(st.fixed_dictionaries(FIELD_VALUES), st.sampled_from(["full", "observation"]))
+def test_a_taught_config_is_in_the_planner_regime_exactly_when_its_teacher_reads_the_observation(fields, view):
+    regime = config_regime({**fields, "teacher_view": view})
+    if not any(fields.values()):
+        assert regime == "reward"
+    else:
+        assert regime == ("planner" if view == "observation" else "oracle-teacher")
+
+
+def test_a_teacher_on_the_observation_needs_a_teacher_and_the_footprints_in_the_observation():
+    pytest.importorskip("torch")
+    from deck_sim.agents import OBSERVED_FIELDS
+    from training.config import ConfigError, make_config
+
+    with pytest.raises(ConfigError, match="teacher_view: expected one of full, observation"):
+        make_config("tuned", teacher_view="oracle")
+    with pytest.raises(ConfigError, match="no teaching field is on"):
+        make_config("reward", teacher_view="observation", scene_overrides=dict(OBSERVED_FIELDS))
+    with pytest.raises(ConfigError, match="set scene_overrides episode__static_size = true, "
+                                          "episode__obstacle_shape = true"):
+        make_config("tuned", teacher_view="observation", scene_overrides={"episode__mover_size": True})
+    cfg = make_config("tuned", algo="ddpg", teacher_view="observation", scene_overrides=dict(OBSERVED_FIELDS))
+    assert cfg.regime == "planner" and cfg.teacher_policy_view == "observation-without-forecast"
+    assert make_config("tuned", algo="mddpg").teacher_policy_view == "full"
+
+
+@pytest.mark.parametrize(("algo", "view"), [("mddpg", "observation"), ("ddpg", "observation-without-forecast")])
+def test_the_planner_recipes_teach_each_agent_from_its_own_observation(algo, view):
+    pytest.importorskip("torch")
+    from training.recipes import load_recipe
+    from training.runners import EnvGroup
+
+    for name in ("deck1-planner", "deck2-planner"):
+        cfg = load_recipe(name).config(algo, 0)
+        assert (cfg.regime, cfg.teacher_policy_view) == ("planner", view)
+    group = EnvGroup(1, None)
+    spec = cfg_spec(load_recipe("deck1-planner").config(algo, 0))
+    group.build(0, *spec)
+    try:
+        assert group.experts[0].view == view
+    finally:
+        group.close()
+
+
+def cfg_spec(cfg):  # noqa: ANN001, ANN201
+    """The environment spec a run of ``cfg`` builds its first environments from."""
+    from training.runners import EnvSpec
+
+    return EnvSpec(cfg.scene, cfg.predictor, dict(cfg.scene_overrides), cfg.expert_relabel, cfg.teacher_body,
+                   cfg.teacher_policy_view)
+
+
+def test_a_short_planner_regime_run_records_its_regime(tmp_path):
+    pytest.importorskip("torch")
+    from conftest import short_config
+
+    from deck_sim.agents import OBSERVED_FIELDS
+    from training.loop import Trainer
+
+    cfg = short_config(algo="mddpg", teacher_view="observation", scene_overrides=dict(OBSERVED_FIELDS),
+                       total_steps=60, env_worker=False)
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    assert trainer.env_spec(0) == cfg_spec(cfg)._replace(overrides=trainer.env_spec(0).overrides)
+    trainer.train()
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["regime"] == "planner"
+    assert actor_regime(load_actor(tmp_path / "run" / "actor.npz").meta) == "planner"
+    assert trainer.demo_summary["success"] == 1.0  # the planner on the observation reached its demonstrated target

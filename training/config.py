@@ -24,12 +24,14 @@ from typing import Any
 
 from deck_sim import agents
 from deck_sim.evaluation import TRAIN_SEED_BASE
-from deck_sim.policies.regimes import config_regime
+from deck_sim.policies.regimes import TEACHING_FIELDS, config_regime
 
 ALGOS = tuple(a for a in agents.ALGOS if agents.AGENTS[a].trainer == "ddpg")
 """The training algorithms of ``training.ddpg`` (``mddpg``, ``ddpg``); the others go through
 ``training.baselines``."""
 NOISES = ("gaussian", "ou")
+TEACHER_VIEWS = ("full", "observation")
+"""What a teaching planner may read (``TrainConfig.teacher_view``)."""
 ACTOR_ARCHS = ("mlp", "sets")
 
 
@@ -234,6 +236,12 @@ class TrainConfig:
     """Teach with the scripted planner that checks the agent's whole body on the way it will really go
     (``ScriptedPlanner.body``: an aircraft's nose and tail, and its tracker's kinematics) in its demonstrations
     and its labels; off: the planner that checks the agent's disc along its path."""
+    teacher_view: str = "full"
+    """What the teaching planner reads: ``full``, the task's privileged state (``Navigate.planner_view``: regime
+    ``oracle-teacher``); ``observation``, only what the agent's own observation holds (``Navigate.observed_view``:
+    the observed footprints, and the observed MPC forecast for MDDPG or none for DDPG, whose observation has
+    none: regime ``planner``). ``observation`` needs every obstacle's footprint in the observation (scene fields
+    ``episode.static_size``, ``episode.mover_size``, ``episode.obstacle_shape``) and a teaching field on."""
     demo_fraction: float = 0.25
     """Share of every batch drawn from the demonstrations (when there are any)."""
     bc_weight: float = 0.0
@@ -303,9 +311,31 @@ class TrainConfig:
         return config_regime(self.to_dict())
 
     @property
+    def teacher_policy_view(self) -> str:
+        """The teaching planner's ``deck_sim.policies.ScriptedPolicy`` view: ``full``, or the agent's own
+        observation, with its forecast (MDDPG) or without (DDPG: ``observation-without-forecast``)."""
+        if self.teacher_view == "full":
+            return "full"
+        return "observation" if self.predictor != "none" else "observation-without-forecast"
+
+    @property
     def predictor(self) -> str:
         """The predictor filling the observation: ``mpc`` for MDDPG, ``none`` for DDPG."""
         return "mpc" if self.algo == "mddpg" else "none"
+
+    def _check_observed_footprints(self) -> None:
+        """``ConfigError`` unless the scene, with the run's overrides, observes every obstacle's footprint."""
+        from deck_sim.scenes import SceneSpecError, load_scene
+
+        try:
+            episode = load_scene(self.scene).episode
+        except SceneSpecError as err:
+            raise ConfigError(f"scene: {err}") from err
+        off = [key for key in agents.OBSERVED_FIELDS
+               if not self.scene_overrides.get(key, getattr(episode, key.removeprefix("episode__")))]
+        if off:
+            raise ConfigError(f"teacher_view: 'observation' plans from every obstacle's footprint in the observation; "
+                              f"set scene_overrides {', '.join(f'{k} = true' for k in off)}")
 
     def validate(self) -> TrainConfig:
         """Raise ``ConfigError`` naming the first field with an impossible value; return self."""
@@ -350,6 +380,13 @@ class TrainConfig:
                 raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(self, name)!r}")
         if not self.per_eps > 0.0:
             raise ConfigError(f"per_eps: must be positive, got {self.per_eps!r}")
+        if self.teacher_view not in TEACHER_VIEWS:
+            raise ConfigError(f"teacher_view: expected one of {', '.join(TEACHER_VIEWS)}, got {self.teacher_view!r}")
+        if self.teacher_view == "observation":
+            if not any(bool(getattr(self, name)) for name in TEACHING_FIELDS):
+                raise ConfigError("teacher_view: 'observation' names what a teacher reads, but no teaching field is "
+                                  f"on ({', '.join(TEACHING_FIELDS)})")
+            self._check_observed_footprints()
         if self.demo_noise < 0:
             raise ConfigError(f"demo_noise: must be >= 0, got {self.demo_noise!r}")
         for name in ("actor_lr", "critic_lr", "updates_per_step", "reward_scale", "polish_lr"):

@@ -178,9 +178,10 @@ def collect_demonstrations(
     progress: bool = True,
     noise: float = 0.0,
     body: bool = False,
+    view: str = "full",
     **overrides: Any,
 ) -> Demonstrations:
-    """Play ``episodes`` episodes of the full-knowledge scripted planner and keep their transitions.
+    """Play ``episodes`` episodes of the scripted planner and keep their transitions.
 
     The planner plans around the MPC predictor's forecasts (``TEACHER_PREDICTOR``), the same forecasts MDDPG
     observes; for an agent without prediction (``layout`` lacks ``predicted``) that part of the observation is
@@ -188,11 +189,12 @@ def collect_demonstrations(
     ``demo_episode_seed(seed, k)`` (disjoint from training and evaluation seeds); ``overrides`` are scene fields.
     With ``noise`` > 0 the executed action is the planner's plus N(0, noise^2) per component (DART), drawn from a
     generator seeded by ``seed``; the planner's own action is kept as the cloning target. ``body`` is the
-    planner's ``ScriptedPlanner.body`` (``TrainConfig.teacher_body``).
+    planner's ``ScriptedPlanner.body`` (``TrainConfig.teacher_body``), ``view`` what it reads
+    (``TrainConfig.teacher_policy_view``: the task's full state, or the agent's own observation).
     """
     env = make_env(scene, TEACHER_PREDICTOR, **overrides)
     full = env_layout(env)
-    policy = ScriptedPolicy(env.composer_env, ScriptedPlanner(body=body))
+    policy = ScriptedPolicy(env.composer_env, ScriptedPlanner(body=body), view=view)
     rows: dict[str, list[np.ndarray]] = {
         k: [] for k in ("obs", "action", "expert_action", "reward", "next_obs", "terminated")
     }
@@ -206,7 +208,7 @@ def collect_demonstrations(
         policy.reset()
         done = False
         while not done:
-            expert = np.clip(policy.act({}), -1.0, 1.0)  # the planner reads the task's full state
+            expert = np.clip(policy.act({}), -1.0, 1.0)  # the planner reads the task's state, as its view allows
             action = np.clip(expert + noise * rng.standard_normal(2), -1.0, 1.0) if noise > 0 else expert
             next_obs, reward, terminated, truncated, info = env.step(action)
             rows["obs"].append(obs)

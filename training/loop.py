@@ -218,7 +218,9 @@ class Trainer:
         if stage not in self._specs:
             cfg = self.config
             overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
-            self._specs[stage] = EnvSpec(cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body)
+            self._specs[stage] = EnvSpec(
+                cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body, cfg.teacher_policy_view
+            )
         return self._specs[stage]
 
     def start_episode(self, slot: _Slot, stage: int | None = None) -> None:
@@ -358,6 +360,7 @@ class Trainer:
                 self.progress,
                 noise=cfg.demo_noise,
                 body=cfg.teacher_body,
+                view=cfg.teacher_policy_view,
                 **cfg.scene_overrides,
             )
             self.buffer.add_demos(

@@ -42,13 +42,15 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 class EnvSpec(NamedTuple):
     """What one environment is built from: the scene, the agent's predictor, scene overrides, whether the planner
-    labels its steps and whether that planner checks the agent's whole body (``ScriptedPlanner.body``)."""
+    labels its steps, whether that planner checks the agent's whole body (``ScriptedPlanner.body``) and what it
+    reads (``deck_sim.policies.TEACHER_VIEWS``)."""
 
     scene: str
     predictor: str
     overrides: dict[str, Any]
     expert: bool
     body: bool = False
+    view: str = "full"
 
 
 @dataclass
@@ -127,7 +129,14 @@ class EnvGroup:
         self._fills: dict[str, float] | None = None
 
     def build(
-        self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool, body: bool = False
+        self,
+        i: int,
+        scene: str,
+        predictor: str,
+        overrides: dict[str, Any],
+        expert: bool,
+        body: bool = False,
+        view: str = "full",
     ) -> dict[str, tuple[int, ...]]:
         from deck_sim.control.planners import ScriptedPlanner
         from deck_sim.policies import ScriptedPolicy
@@ -137,7 +146,9 @@ class EnvGroup:
         # an agent without prediction is taught by the planner on the teacher's forecasts, and sees them dropped
         env_predictor = TEACHER_PREDICTOR if expert and predictor == "none" else predictor
         self.envs[i] = make_env(scene, env_predictor, **overrides)
-        self.experts[i] = ScriptedPolicy(self.envs[i].composer_env, ScriptedPlanner(body=body)) if expert else None
+        self.experts[i] = (
+            ScriptedPolicy(self.envs[i].composer_env, ScriptedPlanner(body=body), view=view) if expert else None
+        )
         full = env_layout(self.envs[i])
         own = full.without(("predicted",)) if env_predictor != predictor else full
         self.views[i] = (full, own) if own.keys != full.keys else None
@@ -164,7 +175,7 @@ class EnvGroup:
 
     def step_one(self, i: int, action: np.ndarray) -> StepResult:
         expert = None
-        if self.experts[i] is not None:  # what the planner would do here (it reads the task's full state)
+        if self.experts[i] is not None:  # what the planner would do here (from what its view lets it read)
             expert = np.clip(self.experts[i].act({}), -1.0, 1.0)
         obs, reward, terminated, truncated, info = self.envs[i].step(action)
         self.obs[i] = self._agent_obs(i, obs)
@@ -228,10 +239,17 @@ class Runner:
         raise NotImplementedError
 
     def build(
-        self, i: int, scene: str, predictor: str, overrides: dict[str, Any], expert: bool, body: bool = False
+        self,
+        i: int,
+        scene: str,
+        predictor: str,
+        overrides: dict[str, Any],
+        expert: bool,
+        body: bool = False,
+        view: str = "full",
     ) -> ObservationLayout:
         g, k = self._where[i]
-        return ObservationLayout(self._call(g, "build", k, scene, predictor, overrides, expert, body))
+        return ObservationLayout(self._call(g, "build", k, scene, predictor, overrides, expert, body, view))
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         g, k = self._where[i]

@@ -12,8 +12,9 @@ Agents: the learned policies shipped in ``deck_sim/trained`` (``mddpg``, ``ddpg`
 (``label=path.npz``), and the references that need no training: ``apf``, ``astar`` and ``mpc`` (classical
 planners, ``deck_sim.control.planners``; they plan around the MPC predictor's forecast, the same one MDDPG sees),
 ``scripted`` (the full-knowledge planner with the movers' true future: the solvability ceiling), ``scripted-body``
-(the same planner checking an aircraft's nose and tail on the way its tracker will really take it), ``random`` and
-``zero``.
+(the same planner checking an aircraft's nose and tail on the way its tracker will really take it),
+``scripted-observed`` (that planner on the observation alone: the observed footprints and the MPC forecast; the
+teacher of the ``planner`` training regime), ``random`` and ``zero``.
 
 ``write_report`` turns the results into ``summary.json``, ``episodes.csv``, ``summary.csv`` and ``results.md``
 (the paper's Tables 1-3 beside ours), and ``plot_learning_curves`` / ``plot_trajectories`` draw the figures.

@@ -139,7 +139,8 @@ def markdown_tables(res: EvalResults) -> str:
         "rates in % with Wilson 95 % intervals, means ± the half-width of their Student-t 95 % interval. "
         "Path length, its ratio and turning angle are over successful episodes, as in the paper. "
         "`apf`, `astar`, `mpc` and `scripted` plan on the task's privileged view (every obstacle's exact footprint "
-        "and the movers' forecast), not on the observation the learned agents get.",
+        "and the movers' forecast), not on the observation the learned agents get; `scripted-observed` plans on "
+        "the observation alone (the observed footprints and the MPC forecast).",
         "",
         "**Success rate, % (paper Table 1)**: the paper's figure is the mean of 100 success rates sampled from its "
         "training curves in Unity; ours is the shipped policy on held-out episodes.",

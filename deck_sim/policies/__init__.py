@@ -25,7 +25,7 @@ from deck_sim.policies.actors import (
     obstacle_sets,
     set_indices,
 )
-from deck_sim.policies.reference import Policy, RandomPolicy, ScriptedPolicy, ZeroPolicy
+from deck_sim.policies.reference import TEACHER_VIEWS, Policy, RandomPolicy, ScriptedPolicy, ZeroPolicy
 from deck_sim.policies.registry import (
     CLASSICAL,
     POLICY_NAMES,
@@ -60,6 +60,7 @@ __all__ = [
     "PolicyFileError",
     "RandomPolicy",
     "ScriptedPolicy",
+    "TEACHER_VIEWS",
     "ZeroPolicy",
     "load_actor",
     "make_policy",

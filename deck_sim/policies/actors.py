@@ -222,7 +222,8 @@ class LearnedPolicy:
     def scene_overrides(self) -> dict[str, Any]:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
-        ``episode__mover_size`` for one trained on the movers' sizes, ``episode__near_obstacles`` for one trained
+        ``episode__mover_size`` for one trained on the movers' sizes, ``episode__static_size`` for one trained on
+        the static obstacles' footprints, ``episode__near_obstacles`` for one trained
         on the obstacles within its near field, the ``episode__near_steps`` and
         ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its
         training overrode (the observation's keys and shapes cannot tell those)."""
@@ -235,6 +236,8 @@ class LearnedPolicy:
             out["episode__obstacle_shape"] = True
         if "dynamic_size" in self.keys:
             out["episode__mover_size"] = True
+        if "static_size" in self.keys:
+            out["episode__static_size"] = True
         if "static_near" in self.keys:
             out["episode__near_obstacles"] = True
         trained = dict(self.meta.get("scene_overrides") or {})

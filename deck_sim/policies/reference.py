@@ -21,24 +21,43 @@ class Policy(Protocol):
         """Action (2,) for this observation."""
 
 
+TEACHER_VIEWS = ("full", "observation", "observation-without-forecast")
+"""What ``ScriptedPolicy``'s planner reads: ``full``, the task's privileged state (``Navigate.planner_view``);
+``observation``, only what the step's observation holds (``Navigate.observed_view``: the observed footprints and
+the observed forecast); ``observation-without-forecast``, the same with every mover taken to stand where it is
+(the view of an agent whose observation holds no prediction)."""
+
+
 class ScriptedPolicy:
-    """The full-knowledge ``ScriptedPlanner`` reading the task's privileged ``planner_view``."""
+    """A planner (by default the scripted one) reading the task's privileged ``planner_view``, or with ``view``
+    only what the observation holds (``TEACHER_VIEWS``)."""
 
     def __init__(
-        self, env: composer.Environment, planner: ScriptedPlanner | APFPlanner | AStarPlanner | MPCPlanner | None = None
+        self,
+        env: composer.Environment,
+        planner: ScriptedPlanner | APFPlanner | AStarPlanner | MPCPlanner | None = None,
+        view: str = "full",
     ) -> None:
+        if view not in TEACHER_VIEWS:
+            raise ValueError(f"view: expected one of {', '.join(TEACHER_VIEWS)}, got {view!r}")
         self._env = env
         self.planner = planner or ScriptedPlanner()
+        self.view = view
 
     def reset(self) -> None:
         """Forget the previous episode."""
         self.planner.reset()
 
     def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """Plan from the task's full state (the observation is not needed); the planner's world-frame action is
-        turned into the task's action frame (``episode.frame``)."""
+        """Plan from the task's state as ``view`` allows (the observation argument is not needed: the task holds
+        this step's); the planner's world-frame action is turned into the task's action frame
+        (``episode.frame``)."""
         task = self._env.task
-        return task.action_from_world(self.planner.act(task.planner_view()))
+        if self.view == "full":
+            view = task.planner_view()
+        else:
+            view = task.observed_view(forecast=self.view == "observation")
+        return task.action_from_world(self.planner.act(view))
 
 
 class RandomPolicy:

@@ -5,8 +5,9 @@ table:
 
 - ``reward``: reinforcement learning from the scene's reward alone (paper eq. 10-16): no demonstrations, no planner
   labels, no cloning term, no final fit. The paper's protocol.
-- ``planner``: also learns from a planner that sees only what the agent's observation holds. No teacher of this
-  regime is built in yet; an actor file may state it (its record's ``regime``).
+- ``planner``: also learns from a planner that sees only what the agent's observation holds: the scripted planner
+  on ``Navigate.observed_view`` (``TrainConfig.teacher_view = "observation"``): the observed footprints of every
+  obstacle, and the observed MPC forecast for MDDPG, none for DDPG.
 - ``oracle-teacher``: also learns from the scripted planner (``TrainConfig``'s teaching fields), which reads the
   task's full state (``Navigate.planner_view``: every obstacle's exact footprint and heading, the aircraft's body
   and limits) and plans around the MPC forecast (``training.envs.TEACHER_PREDICTOR``), through demonstrations,
@@ -46,9 +47,11 @@ cloning fit and its DAgger round."""
 
 def config_regime(config: Mapping[str, Any]) -> str:
     """The regime of a training config given as a mapping (``TrainConfig.to_dict()`` or a run's ``config.json``):
-    ``oracle-teacher`` if a teaching field is on, else ``reward``."""
-    taught = any(bool(config.get(name) or 0) for name in TEACHING_FIELDS)
-    return "oracle-teacher" if taught else "reward"
+    ``reward`` if no teaching field is on, else ``planner`` if its teacher reads the observation alone
+    (``teacher_view``), else ``oracle-teacher``."""
+    if not any(bool(config.get(name) or 0) for name in TEACHING_FIELDS):
+        return "reward"
+    return "planner" if config.get("teacher_view", "full") == "observation" else "oracle-teacher"
 
 
 def actor_regime(meta: Mapping[str, Any]) -> str | None:

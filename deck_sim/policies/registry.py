@@ -65,25 +65,31 @@ REFERENCE_PREDICTOR = "mpc"
 
 def policy_overrides(name: str, scene: str) -> dict[str, Any]:
     """The scene fields (``deck_sim.load`` keywords) policy ``name`` runs with on ``scene`` unless told otherwise:
-    the oracle for ``scripted`` and ``scripted-body``, ``REFERENCE_PREDICTOR`` for the classical references, a
-    learned actor's own predictor and observation (``LearnedPolicy.scene_overrides``), none for ``random`` and
-    ``zero``."""
+    the oracle for ``scripted`` and ``scripted-body``, ``REFERENCE_PREDICTOR`` for the classical references,
+    ``REFERENCE_PREDICTOR`` and the observed footprints (``deck_sim.agents.OBSERVED_FIELDS``) for
+    ``scripted-observed``, a learned actor's own predictor and observation (``LearnedPolicy.scene_overrides``),
+    none for ``random`` and ``zero``."""
     if name in SCRIPTED:
         return {"episode__predictor": "oracle"}
     if name in CLASSICAL:
         return {"episode__predictor": REFERENCE_PREDICTOR}
+    if name in agents.OBSERVERS:
+        return {"episode__predictor": REFERENCE_PREDICTOR, **agents.OBSERVED_FIELDS}
     path = policy_file(name, scene)
     return load_actor(path).scene_overrides if path is not None else {}
 
 
 def make_policy(name: str, env: composer.Environment, seed: int = 0) -> Policy:
-    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``scripted-body``, ``apf``,
-    ``astar``, ``mpc``, ``random``, ``zero``), a shipped learned one (``mddpg``, ``ddpg``, ``dqn``, ``a2c``) or an
-    actor file (a path ending in ``.npz``); raises ``ValueError`` listing the known names."""
+    """The policy called ``name`` for ``env``: a reference policy (``scripted``, ``scripted-body``,
+    ``scripted-observed``, ``apf``, ``astar``, ``mpc``, ``random``, ``zero``), a shipped learned one (``mddpg``,
+    ``ddpg``, ``dqn``, ``a2c`` ...) or an actor file (a path ending in ``.npz``); raises ``ValueError`` listing the
+    known names."""
     if name in SCRIPTED:
         return ScriptedPolicy(env, ScriptedPlanner(body=SCRIPTED[name]))
     if name in CLASSICAL:
         return ScriptedPolicy(env, CLASSICAL[name]())
+    if name in agents.OBSERVERS:
+        return ScriptedPolicy(env, ScriptedPlanner(body=True), view="observation")
     if name == "random":
         return RandomPolicy(seed)
     if name == "zero":

@@ -229,14 +229,20 @@ class EpisodeSpec:
     """Also observe each mover's size (``dynamic_size``, (n, 2), in the same order as ``dynamic_obstacles``): the
     half-length and half-width of its footprint, rounding radius included, metres (on deck 1: (9.15, 6.8) for the
     taxiing aircraft, (2.0, 1.0) for a tractor). Off by default (the paper's observation)."""
+    static_size: bool = False
+    """Also observe each static obstacle's footprint (``static_size``, (m, 2): its half-length and half-width,
+    rounding radius included, metres; ``static_heading``, (m, 2): the cos and sin of its long axis; both in the
+    order of ``static_obstacles``). With ``obstacle_shape`` and ``mover_size`` the observation then holds every
+    obstacle's footprint, which a planner can plan from (``Navigate.observed_view``). Off by default (the paper's
+    observation)."""
     frame: Literal["world", "agent"] = "world"
     """The axes of the observation's vectors and of the action: ``world`` (the deck's axes, the paper's) or
     ``agent`` (x along the agent's heading, y to its left; egocentric). In the agent frame every relative vector
     of the observation (``target``, obstacles, ``predicted``, the shape's nearest points and headings,
     ``target_near``, ``static_near``, ``dynamic_near``, ``velocity``) is turned by minus the agent's yaw, and an
     action (x, y) asks for a displacement of ``reach * x`` metres ahead and ``reach * y`` to the left.
-    ``position``, ``heading`` (the yaw's cos and sin, so the world can still be recovered), ``dynamic_size`` and
-    ``edge_near`` stay as they are.
+    ``position``, ``heading`` (the yaw's cos and sin, so the world can still be recovered), ``dynamic_size``,
+    ``static_size`` and ``edge_near`` stay as they are.
     The scripted and classical planners, which plan in the world, have their actions turned into this frame
     (``Navigate.action_from_world``)."""
     near_steps: int = 0

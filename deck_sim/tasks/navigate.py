@@ -35,13 +35,21 @@ from deck_sim.control.prediction import (
 )
 from deck_sim.control.tracking import AircraftLimits, track_displacement, track_velocity
 from deck_sim.entities import Aircraft, Pedestrian, StaticProp, Tractor, make_arena
-from deck_sim.geometry import Footprints, NoPathError, VisibilityGraph, end_circles, points_along, world_to_agent
+from deck_sim.geometry import (
+    Footprints,
+    NoPathError,
+    VisibilityGraph,
+    agent_to_world,
+    end_circles,
+    points_along,
+    world_to_agent,
+)
 from deck_sim.scenes import ROUTE_MARGIN, SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.tasks.actions import InvalidActionError, checked_action
 from deck_sim.tasks.layout import Layout, LayoutError, sample_layout, static_footprints, yaw_quat
 from deck_sim.tasks.movers import MoverDriver
-from deck_sim.tasks.observation import ObservationConfig, build_observation, observation_shapes
+from deck_sim.tasks.observation import TURNED_KEYS, ObservationConfig, build_observation, observation_shapes
 from deck_sim.tasks.physics_step import Clearances, FusedStepper, as_slice
 from deck_sim.types import ObstacleKind, ObstacleTracks, PlannerView, Prediction
 
@@ -174,6 +182,7 @@ class Navigate(composer.Task):
             near=spec.episode.near_steps * spec.agent.reach,  # metres of the near field; 0: not observed
             near_obstacles=spec.episode.near_obstacles,
             route_steps=self._route_steps,
+            static_size=spec.episode.static_size,
             agent_frame=self._agent_frame,
         )
         self._route_graph: VisibilityGraph | None = None  # the statics' graph for a disc of the agent (per episode)
@@ -573,6 +582,64 @@ class Navigate(composer.Task):
         except NoPathError:
             path = np.stack([agent_xy, target])
         return points_along(path, self.spec.agent.reach * np.arange(1, self._route_steps + 1))
+
+    def observed_view(self, forecast: bool = True) -> PlannerView:
+        """What a planner may plan from when it sees only this step's observation (the ``planner`` regime's
+        teacher): the obstacles' footprints, positions and headings as observed, and the movers' predicted
+        positions as observed (``forecast``; without it, or without a ``predicted`` part, every mover is taken to
+        stand where it is). The footprints are the observed rectangles of half-length and half-width, rounding
+        included, so they contain the true rounded ones. What never changes during an episode and is no state of
+        the world comes from the scene as in ``planner_view``: the agent's own size, body and limits, the goal
+        radius, the surface's bounds, the step's reach and period.
+
+        Raises:
+            ValueError: The observation lacks the footprints (scene fields ``episode.static_size``,
+                ``episode.mover_size`` and ``episode.obstacle_shape`` must be on).
+        """
+        obs = self._obs
+        missing = [f"episode.{field}" for field, key in (("static_size", "static_size"), ("mover_size",
+                   "dynamic_size"), ("obstacle_shape", "dynamic_heading")) if key not in obs]
+        if missing:
+            raise ValueError(f"scene {self.spec.name!r}: a planner on the observation needs every obstacle's "
+                             f"footprint in it; turn on {', '.join(missing)}")
+        xy = np.array(obs["position"], dtype=float)
+        yaw = math.atan2(float(obs["heading"][1]), float(obs["heading"][0]))
+
+        def world(key: str) -> np.ndarray:  # an observed vector (or array of them) in the world's axes
+            v = np.asarray(obs[key], dtype=float)
+            return agent_to_world(v, yaw) if self._agent_frame and key in TURNED_KEYS else v
+
+        def angle(key: str) -> np.ndarray:
+            heading = world(key)
+            return np.arctan2(heading[:, 1], heading[:, 0])
+
+        n_static, n_movers = len(obs["static_obstacles"]), len(obs["dynamic_obstacles"])
+        statics = Footprints(xy + world("static_obstacles"), np.array(obs["static_size"], dtype=float),
+                             angle("static_heading"), np.zeros(n_static))
+        mover_xy = xy + world("dynamic_obstacles")
+        movers = Footprints(mover_xy, np.array(obs["dynamic_size"], dtype=float), angle("dynamic_heading"),
+                            np.zeros(n_movers))
+        if forecast and "predicted" in obs:
+            origin = xy if self._obs_config.predicted_from_agent else mover_xy[:, None]
+            future = origin + world("predicted")
+        else:
+            future = np.repeat(mover_xy[:, None], max(self._horizon, 1), axis=1)
+        return PlannerView(
+            agent_xy=xy,
+            agent_yaw=yaw,
+            agent_speed=float(np.dot(world("velocity"), obs["heading"])),
+            agent_radius=self.spec.agent.radius,
+            target_xy=xy + world("target"),
+            goal_radius=self.spec.agent.goal_radius,
+            statics=statics,
+            movers=movers,
+            mover_future=future,
+            bounds=self._arena.bounds,
+            reach=self.spec.agent.reach,
+            period=self.spec.episode.control_period,
+            agent_circles=self._agent_circles,
+            agent_limits=self._aircraft_limits,
+        )
 
     def planner_view(self) -> PlannerView:
         """Full knowledge of the current step for the scripted planner."""

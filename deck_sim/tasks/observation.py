@@ -8,6 +8,7 @@ Observation (all relative vectors in the world frame, metres, or in the agent's 
     ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
     the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``),
+    the static obstacles' footprints (``static_size``: ``static_size`` and ``static_heading``),
     the target and edges clipped to a few steps' reach (``near_steps``: ``target_near``, ``edge_near``; with
     ``near_obstacles`` also every obstacle's nearest point clipped to it, ``static_near``, ``dynamic_near``) and the
     next points of the shortest way round the static obstacles (``route_steps``: ``route``).
@@ -32,6 +33,7 @@ TURNED_KEYS = (
     "static_nearest",
     "dynamic_nearest",
     "dynamic_heading",
+    "static_heading",
     "target_near",
     "static_near",
     "dynamic_near",
@@ -59,6 +61,9 @@ class ObservationConfig:
             and ``edge_near`` out.
         near_obstacles: with ``near`` > 0, observe ``static_near`` and ``dynamic_near``.
         route_steps: points of ``route``; 0 leaves it out.
+        static_size: observe every static obstacle's footprint: ``static_size`` (m, 2), its half-length and
+            half-width, rounding radius included, metres, and ``static_heading`` (m, 2), the cos and sin of its
+            long axis, in the order of ``static_obstacles``.
         agent_frame: turn the relative vectors (``TURNED_KEYS``) into the agent's axes.
     """
 
@@ -72,6 +77,7 @@ class ObservationConfig:
     near: float = 0.0
     near_obstacles: bool = False
     route_steps: int = 0
+    static_size: bool = False
     agent_frame: bool = False
 
 
@@ -85,6 +91,8 @@ def observation_shapes(config: ObservationConfig, n_static: int, n_movers: int) 
         shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
     if config.mover_size is not None:
         shapes["dynamic_size"] = (n, 2)
+    if config.static_size:
+        shapes.update({"static_size": (m, 2), "static_heading": (m, 2)})
     if config.near > 0:
         shapes.update({"target_near": (2,), "edge_near": (4,)})
         if config.near_obstacles:
@@ -148,6 +156,10 @@ def build_observation(
         obs["dynamic_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
     if config.mover_size is not None:
         obs["dynamic_size"] = config.mover_size[order_m]
+    if config.static_size:
+        obs["static_size"] = (statics.half + statics.radius[:, None])[order_s]
+        yaw = statics.yaw[order_s]
+        obs["static_heading"] = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
     if near > 0:
         to_target = obs["target"]
         length = math.hypot(float(to_target[0]), float(to_target[1]))

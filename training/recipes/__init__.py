@@ -1,13 +1,14 @@
 """Training recipes as data: one TOML file per shipped recipe (``deck1.toml``, ``deck2.toml``, ``square.toml``:
-taught by the full-knowledge planner; ``deck1-reward.toml``, ``deck2-reward.toml``, ``square-reward.toml``: from
-the reward alone, the paper's protocol).
+taught by the full-knowledge planner; ``deck1-planner.toml``, ``deck2-planner.toml``: taught by the planner on
+the agent's own observation; ``deck1-reward.toml``, ``deck2-reward.toml``, ``square-reward.toml``: from the
+reward alone, the paper's protocol).
 
-A recipe names its scene and two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of ``training.config.PRESETS``,
-the training seeds, and any ``TrainConfig`` fields over the preset) and ``[sb3]`` for the DQN and A2C baselines
-(seeds, steps and evaluation cadence, any field both configs share such as ``num_envs``; ``[sb3.dqn]`` and
-``[sb3.a2c]`` hold each algorithm's own fields, ``training.baseline_config``). ``deck-sim train --recipe deck1
---algo mddpg --seed 0`` trains one seed; ``scripts/train_shipped.py`` trains every seed of every agent and ships
-the result.
+A recipe names its scene and one or two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of
+``training.config.PRESETS``, the training seeds, and any ``TrainConfig`` fields over the preset) and, optionally,
+``[sb3]`` for the DQN and A2C baselines (seeds, steps and evaluation cadence, any field both configs share such as
+``num_envs``; ``[sb3.dqn]`` and ``[sb3.a2c]`` hold each algorithm's own fields, ``training.baseline_config``).
+``deck-sim train --recipe deck1 --algo mddpg --seed 0`` trains one seed; ``scripts/train_shipped.py`` trains every
+seed of every agent and ships the result.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ class Recipe:
         sb3_seeds: Training seeds of DQN and A2C.
         sb3_fields: ``steps``, ``eval_every`` and ``eval_episodes`` of DQN and A2C, and any other field of their
             configs: shared ones at the top, each algorithm's own under its name (``{"dqn": {...}}``).
+        has_sb3: Whether the recipe trains DQN and A2C at all (its file has an ``[sb3]`` table).
     """
 
     name: str
@@ -47,14 +49,30 @@ class Recipe:
     ddpg_fields: dict[str, Any] = field(default_factory=dict)
     sb3_seeds: tuple[int, ...] = (0,)
     sb3_fields: dict[str, Any] = field(default_factory=dict)
+    has_sb3: bool = True
+
+    @property
+    def algos(self) -> tuple[str, ...]:
+        """The training algorithms this recipe trains, in the paper's ranking."""
+        return ("mddpg", "ddpg", "dqn", "a2c") if self.has_sb3 else ("mddpg", "ddpg")
 
     def seeds(self, algo: str) -> tuple[int, ...]:
         """The training seeds of ``algo`` in this recipe."""
-        return self.ddpg_seeds if _trainer(algo) == "ddpg" else self.sb3_seeds
+        if _trainer(algo) == "ddpg":
+            return self.ddpg_seeds
+        self._check_sb3(algo)
+        return self.sb3_seeds
+
+    def _check_sb3(self, algo: str) -> None:
+        if not self.has_sb3:
+            raise ConfigError(f"recipe {self.name} trains MDDPG and DDPG only (no [sb3] table), not {algo}")
 
     def steps(self, algo: str) -> int:
         """Environment steps of one run of ``algo``."""
-        return int(self.ddpg_fields["total_steps"] if _trainer(algo) == "ddpg" else self.sb3_fields["steps"])
+        if _trainer(algo) == "ddpg":
+            return int(self.ddpg_fields["total_steps"])
+        self._check_sb3(algo)
+        return int(self.sb3_fields["steps"])
 
     def config(self, algo: str, seed: int, **overrides: Any) -> TrainConfig:
         """The validated ``TrainConfig`` of one MDDPG or DDPG run of this recipe, ``overrides`` applied last."""
@@ -68,6 +86,7 @@ class Recipe:
         """Keyword arguments of ``training.baselines.train_baseline`` for a DQN or A2C run of this recipe."""
         if _trainer(algo) != "sb3":
             raise ConfigError(f"recipe {self.name}: {algo} trains with training.ddpg; use config")
+        self._check_sb3(algo)
         shared = {k: v for k, v in self.sb3_fields.items() if k not in ("dqn", "a2c")}
         return {**shared, **self.sb3_fields.get(algo, {})}
 
@@ -125,13 +144,15 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
         ddpg_fields=ddpg,
         sb3_seeds=_seeds(sb3.pop("seeds", [0]), f"{path.name} [sb3] seeds"),
         sb3_fields=sb3,
+        has_sb3="sb3" in data,
     )
-    missing = [k for k in ("total_steps",) if k not in ddpg] + [k for k in BASELINE_FIELDS if k not in sb3]
+    missing = [k for k in ("total_steps",) if k not in ddpg]
+    missing += [k for k in BASELINE_FIELDS if k not in sb3] if recipe.has_sb3 else []
     if missing:
         raise ConfigError(f"{path.name}: missing field(s) {', '.join(missing)}")
     from training.baseline_config import baseline_config
 
-    for algo in ("dqn", "a2c"):  # every [sb3] field is checked now, not at training time
+    for algo in ("dqn", "a2c") if recipe.has_sb3 else ():  # every [sb3] field is checked now, not at training time
         own = sb3.get(algo, {})
         if not isinstance(own, dict):
             raise ConfigError(f"{path.name} [sb3] {algo}: expected a table of {algo} fields, got {own!r}")
