@@ -54,7 +54,8 @@ from deck_sim.rollout import git_commit  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-AGENTS = "mddpg-reward,ddpg-reward,mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted,scripted-body"
+AGENTS = ("mddpg-reward,ddpg-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted-observed,"
+          "scripted,scripted-body")
 
 
 def training_figures(scene: str, agent: str) -> dict | None:
@@ -415,8 +416,10 @@ def main() -> None:
         "",
         "Agents: the learned policies shipped in `deck_sim/trained/` (trained by `scripts/train_shipped.py`): "
         "`mddpg-reward` and `ddpg-reward`, MDDPG and DDPG without prediction learnt from the reward alone as in the "
-        "paper; `mddpg` and `ddpg`, the same agents taught by the full-knowledge planner (the column `learnt from` "
-        "says so); DQN and A2C; the classical references of `deck_sim/control/planners.py` "
+        "paper; `mddpg-planner` and `ddpg-planner`, the same agents taught by the scripted planner on their own "
+        "observation; `mddpg` and `ddpg`, taught by the full-knowledge planner (the column `learnt from` says so); "
+        "DQN and A2C; `scripted-observed`, the planner on the observation alone (the `planner` regime's teacher); "
+        "the classical references of `deck_sim/control/planners.py` "
         "(APF, A* with replanning, CasADi MPC; they plan around the MPC predictor's forecast, the one MDDPG sees) "
         "and `scripted`, the full-knowledge planner that sees the movers' true future (the solvability ceiling); "
         "`scripted-body` is the same planner checking the aircraft's nose and tail on the way its tracker will "
