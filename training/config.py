@@ -307,7 +307,8 @@ class TrainConfig:
 
     @property
     def regime(self) -> str:
-        """What the run learns from (``deck_sim.policies.regimes``): ``reward`` unless a teaching field is on."""
+        """What the run learns from (``deck_sim.policies.regimes``): ``reward`` unless a teaching field is on, then
+        ``planner`` or ``oracle-teacher`` by what the teacher reads (``teacher_view``)."""
         return config_regime(self.to_dict())
 
     @property
