@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import deck_sim
+from deck_sim.agents import AGENTS
 from deck_sim.policies import EnsemblePolicy, LearnedPolicy, PolicyFileError, load_actor, make_policy
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
@@ -135,7 +136,7 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
     # all four learned agents of the paper, measured and shipped (and any other shipped agent of the registry)
     assert {"mddpg", "ddpg", "dqn", "a2c"} <= set(agents) <= set(SHIPPED_ALGOS)
     for algo, record in agents.items():
-        if algo == "mddpg":  # acts with the MPC forecast: test_training.py's shipped-policy test
+        if (AGENTS[algo].algo or algo) == "mddpg":  # acts with the MPC forecast: test_trainer.py, test_regimes.py
             continue
         path = shipped_policy_path(algo, scene)
         assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
@@ -173,13 +174,14 @@ def test_project_readme_table_matches_results_json():
     start, end = (text.index(m) for m in script.README_MARKERS)
     assert start < end
     rows = [line for line in text[start:end].splitlines() if line.startswith("| ") and "%" in line]
-    labels = {"MDDPG": "mddpg", "DDPG (no prediction)": "ddpg", "DQN": "dqn", "A2C": "a2c"}
+    labels = {label: algo for algo, label in script.LABELS.items()}
     seen = set()
     for line in rows:
         cells = (c.strip() for c in line.strip("|").split("|"))
         scene, label, learnt, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
-        assert learnt == ("reward" if labels[label] in ("dqn", "a2c") else "oracle-teacher")
+        assert learnt == ("reward" if labels[label] in ("dqn", "a2c") else AGENTS[labels[label]].recipe
+                          or "oracle-teacher")
         assert runs == script.seeds_cell(record["seeds"]), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):

@@ -152,3 +152,11 @@ def test_a_short_planner_regime_run_records_its_regime(tmp_path):
     assert json.loads((tmp_path / "run" / "config.json").read_text())["regime"] == "planner"
     assert actor_regime(load_actor(tmp_path / "run" / "actor.npz").meta) == "planner"
     assert trainer.demo_summary["success"] == 1.0  # the planner on the observation reached its demonstrated target
+
+
+def test_the_shipped_mddpg_learnt_from_the_reward_alone_runs_by_name_and_says_so(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--scene", "deck1", "--policy", "mddpg-reward", "--episodes", "1", "--no-record", "--quiet",
+                 "--out", str(out)]) == 0
+    assert "mddpg-reward learnt from the reward alone (regime: reward)" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text())["regime"] == "reward"
