@@ -1,12 +1,13 @@
 """Where two agents' turning angles differ: the same held-out episodes, the turning split by speed.
 
 The turning angle of ``deck_sim.metrics.turning_angle`` sums the absolute change of direction between consecutive
-path segments (positions one decision apart, segments shorter than 5 cm dropped). A vehicle that creeps or stops
-and starts again lays short segments whose directions wander, so waiting adds turning although the path does not
-bend. This benchmark plays every agent on the same episodes (``deck_sim.load(scene, seed=--seed)``, episode i
-reset with its i-th seed: by default the episodes of docs/results.md) and prints, over the episodes that all agents
-reach, the mean and median turning, the part of it between segments slower than ``--slow`` m/s (either segment of
-the pair), the share of decisions spent below that speed, and the episodes where the first two agents differ most.
+path segments (positions one decision apart, segments shorter than 5 cm dropped). A vehicle that creeps or stops and
+starts again lays short segments whose directions wander, so waiting adds turning although the path does not bend.
+This benchmark plays every agent on the same episodes (episode i reset with seed ``--seed + i`` as
+``deck_sim.evaluation`` resets it: by default the episodes of docs/results.md) and prints, over the episodes that
+all agents reach, the mean and median turning, the part of it between segments slower than ``--slow`` m/s (either
+segment of the pair), the share of decisions spent below that speed, and the episodes where the first two agents
+differ most.
 
     python benchmarks/turning.py [--scene deck1] [--agents mddpg,ddpg] [--episodes 100] [--seed 100000]
                                  [--slow 1.0]
@@ -26,7 +27,7 @@ import numpy as np  # noqa: E402
 from common import machine  # noqa: E402
 
 import deck_sim  # noqa: E402
-from deck_sim.evaluation import DEFAULT_SEED  # noqa: E402
+from deck_sim.evaluation import DEFAULT_SEED, episode_seed  # noqa: E402
 from deck_sim.policies import make_policy, policy_overrides  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 
@@ -65,6 +66,7 @@ def play(agent: str, scene: str, episodes: int, seed: int) -> list[dict]:
             xy.append(info["position"].copy())
             speed.append(info["speed"])
 
+        env.random_state.seed(episode_seed(seed, k))  # as deck_sim.evaluation resets its episode k
         result = run_episode(env, policy, episode=k, on_step=on_step)
         out.append({"outcome": result.outcome, "xy": np.asarray(xy), "speed": np.asarray(speed)})
     env.close()
