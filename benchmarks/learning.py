@@ -125,7 +125,8 @@ def main() -> None:
             runs_of.setdefault(arm, []).append((seed, run))
 
     name = f"recipe {recipe.name}" if recipe else f"scene {scene}"
-    print(f"\n{name}; held-out evaluation: episodes of the seed-500 stream; last evaluation of each run")
+    print(f"\n{name}; periodic evaluation: episodes of the seed-500 stream (which also picks each run's best actor); "
+          "last evaluation of each run")
     if unfinished:
         print(f"unfinished runs, reported at their latest evaluation: {', '.join(unfinished)}")
     print("| arm | seeds | steps | train time | eval episodes | success | success, 95 % over seeds | collision | "
