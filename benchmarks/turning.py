@@ -6,8 +6,9 @@ starts again lays short segments whose directions wander, so waiting adds turnin
 This benchmark plays every agent on the same episodes (episode i reset with seed ``--seed + i`` as
 ``deck_sim.evaluation`` resets it: by default the episodes of docs/results.md) and prints, over the episodes that
 all agents reach, the mean and median turning, the part of it between segments slower than ``--slow`` m/s (either
-segment of the pair), the share of decisions spent below that speed, and the episodes where the first two agents
-differ most.
+segment of the pair), the share of decisions spent below that speed, the action swing (the mean change of direction
+between consecutive commanded displacements of at least a tenth of the full step, degrees per decision: how much the
+actor's command itself swings), and the episodes where the first two agents differ most.
 
     python benchmarks/turning.py [--scene deck1] [--agents mddpg,ddpg] [--episodes 100] [--seed 100000]
                                  [--slow 1.0]
@@ -59,18 +60,34 @@ def play(agent: str, scene: str, episodes: int, seed: int) -> list[dict]:
     policy = make_policy(agent, env, seed=seed)
     out = []
     for k in range(episodes):
-        xy, speed = [], []
+        xy, speed, actions = [], [], []
 
-        def on_step(env, ts, action, xy=xy, speed=speed) -> None:  # noqa: ANN001, ARG001
+        def on_step(env, ts, action, xy=xy, speed=speed, actions=actions) -> None:  # noqa: ANN001, ARG001
             info = env.task.last_info
             xy.append(info["position"].copy())
             speed.append(info["speed"])
+            if action is not None:
+                actions.append(np.array(action, dtype=float))
 
         env.random_state.seed(episode_seed(seed, k))  # as deck_sim.evaluation resets its episode k
         result = run_episode(env, policy, episode=k, on_step=on_step)
-        out.append({"outcome": result.outcome, "xy": np.asarray(xy), "speed": np.asarray(speed)})
+        out.append({"outcome": result.outcome, "xy": np.asarray(xy), "speed": np.asarray(speed),
+                    "action": np.asarray(actions).reshape(-1, 2)})
     env.close()
     return out
+
+
+def action_swing(actions: np.ndarray, least: float = 0.1) -> float:
+    """Mean change of direction between consecutive actions (commanded displacements), radians, over the pairs where
+    both ask for at least ``least`` of the full step: how much the actor's command itself swings from one decision to
+    the next."""
+    norm = np.linalg.norm(actions, axis=1)
+    keep = (norm[1:] >= least) & (norm[:-1] >= least)
+    if not keep.any():
+        return float("nan")
+    angle = np.arctan2(actions[:, 1], actions[:, 0])
+    change = np.abs((np.diff(angle) + np.pi) % (2.0 * np.pi) - np.pi)
+    return float(change[keep].mean())
 
 
 def main() -> None:
@@ -89,7 +106,7 @@ def main() -> None:
     both = [k for k in range(args.episodes) if all(runs[a][k]["outcome"] == "goal" for a in agents)]
     print(f"episodes every agent reaches: {len(both)}")
     print(f"{'agent':10s} {'success':>8s} {'turning mean':>13s} {'median':>8s} {'of it slow':>11s} "
-          f"{'decisions slow':>15s} {'decisions':>10s}")
+          f"{'decisions slow':>15s} {'decisions':>10s} {'action swing':>13s}")
     split = {}
     for a in agents:
         s = np.array([turning_split(runs[a][k]["xy"], period, args.slow) for k in both]).reshape(-1, 2)
@@ -97,8 +114,9 @@ def main() -> None:
         success = np.mean([e["outcome"] == "goal" for e in runs[a]])
         slow_share = np.mean([np.mean(runs[a][k]["speed"] < args.slow) for k in both]) if both else float("nan")
         decisions = np.mean([len(runs[a][k]["xy"]) - 1 for k in both]) if both else float("nan")
+        swing = np.degrees(np.nanmean([action_swing(runs[a][k]["action"]) for k in both])) if both else float("nan")
         print(f"{a:10s} {100 * success:7.1f}% {split[a][:, 0].mean():9.1f} deg {np.median(split[a][:, 0]):4.1f} deg "
-              f"{split[a][:, 1].mean():7.1f} deg {100 * slow_share:14.1f}% {decisions:10.1f}")
+              f"{split[a][:, 1].mean():7.1f} deg {100 * slow_share:14.1f}% {decisions:10.1f} {swing:9.1f} deg")
     if len(agents) >= 2 and both:
         a, b = agents[:2]
         diff = split[a] - split[b]
