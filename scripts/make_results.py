@@ -257,18 +257,18 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
         out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}: "
                    f"{100 * m:+.1f} points, {a} {verdict}; the paper ranks {a} above {b}.")
     if "mddpg" in algos and "ddpg" in algos:
-        m, d = (float(np.mean([r["turning_deg"] for r in algos[a]])) for a in ("mddpg", "ddpg"))
-        pm, pd = (PAPER["turning_deg"].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
-        paper = "" if pm is None else \
-            f"; the paper's MDDPG {'more' if pm > pd else 'less'} ({pm:.1f} against {pd:.1f} deg)"
-        out.append(f"- {scene}: MDDPG turns {'more' if m > d else 'less'} than DDPG ({m:.0f} against {d:.0f} deg "
-                   f"per successful episode, means over seeds){paper}.")
-        m, d = (float(np.mean([r["path_ratio"] for r in algos[a]])) for a in ("mddpg", "ddpg"))
-        pm, pd = (PAPER["path_length"].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
-        paper = "" if pm is None else \
-            f"; the paper's MDDPG {'longer' if pm > pd else 'shorter'} ({pm:.2f} against {pd:.2f} Unity units)"
-        out.append(f"- {scene}: MDDPG's paths are {'longer' if m > d else 'shorter'} than DDPG's ({m:.3f} against "
-                   f"{d:.3f} of the shortest, means over seeds){paper}.")
+        for key, paper_key, more, less, what, unit, paper_unit in (
+            ("turning_deg", "turning_deg", "more", "less", " turns {} than DDPG", "deg per successful episode", "deg"),
+            ("path_ratio", "path_length", "longer", "shorter", "'s paths are {} than DDPG's", "of the shortest",
+             "Unity units"),
+        ):
+            m, d = (float(np.mean([r[key] for r in algos[a]])) for a in ("mddpg", "ddpg"))
+            pm, pd = (PAPER[paper_key].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
+            paper = "" if pm is None else \
+                f"; the paper's MDDPG {more if pm > pd else less} ({pm:.2f} against {pd:.2f} {paper_unit})"
+            spec = ".0f" if key == "turning_deg" else ".3f"
+            out.append(f"- {scene}: MDDPG{what.format(more if m > d else less)} ({m:{spec}} against {d:{spec}} {unit}, "
+                       f"means over seeds){paper}.")
     return out
 
 

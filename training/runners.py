@@ -128,18 +128,12 @@ class EnvGroup:
         self.policy: Policy | None = None
         self._fills: dict[str, float] | None = None
 
-    def build(
-        self,
-        i: int,
-        scene: str,
-        predictor: str,
-        overrides: dict[str, Any],
-        expert: bool,
-        body: bool = False,
-        view: str = "full",
-    ) -> dict[str, tuple[int, ...]]:
+    def build(self, i: int, *spec: Any) -> dict[str, tuple[int, ...]]:
+        """(Re)build environment ``i`` from ``EnvSpec(*spec)``; the shapes of the agent's own observation."""
         from deck_sim.control.planners import ScriptedPlanner
         from deck_sim.policies import ScriptedPolicy
+
+        scene, predictor, overrides, expert, body, view = EnvSpec(*spec)
 
         if self.envs[i] is not None:
             self.envs[i].close()
@@ -238,18 +232,10 @@ class Runner:
     def _call(self, group: int, cmd: str, *args: Any) -> Any:
         raise NotImplementedError
 
-    def build(
-        self,
-        i: int,
-        scene: str,
-        predictor: str,
-        overrides: dict[str, Any],
-        expert: bool,
-        body: bool = False,
-        view: str = "full",
-    ) -> ObservationLayout:
+    def build(self, i: int, *spec: Any) -> ObservationLayout:
+        """(Re)build environment ``i`` from ``EnvSpec(*spec)``; the layout of the agent's own observation."""
         g, k = self._where[i]
-        return ObservationLayout(self._call(g, "build", k, scene, predictor, overrides, expert, body, view))
+        return ObservationLayout(self._call(g, "build", k, *EnvSpec(*spec)))
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         g, k = self._where[i]
