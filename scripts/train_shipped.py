@@ -79,7 +79,7 @@ from deck_sim.rollout import run_episode  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
-from training.recipes import load_recipe  # noqa: E402
+from training.recipes import load_recipe, recipe_names  # noqa: E402
 
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
@@ -298,6 +298,12 @@ def main() -> None:
     for scene in args.scenes.split(","):
         for algo in algos:
             dest = TRAINED_DIR / f"{scene}_{algo}.npz"
+            if not args.evaluate_only and recipe_name(algo, scene) not in recipe_names():
+                message = f"{scene} {algo}: no recipe training/recipes/{recipe_name(algo, scene)}.toml"
+                if args.algos:  # asked for by name: refuse
+                    raise SystemExit(f"{message}; recipes: {', '.join(recipe_names())}")
+                print(f"{message}; skipped", flush=True)
+                continue
             if args.evaluate_only and not args.algos and not dest.exists():
                 print(f"{scene} {algo}: not shipped, not measured", flush=True)
                 continue

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -177,3 +180,11 @@ def test_a_training_config_takes_training_algorithms_not_shipped_agent_names():
 
     with pytest.raises(ConfigError, match="algo: expected one of mddpg, ddpg, got 'mddpg-reward'"):
         make_config("reward", algo="mddpg-reward")
+
+
+def test_train_shipped_refuses_an_agent_whose_recipe_the_scene_lacks():
+    done = subprocess.run([sys.executable, "scripts/train_shipped.py", "--scenes", "square", "--algos",
+                           "mddpg-planner"], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "MUJOCO_GL": "disable"})
+    assert done.returncode != 0
+    assert "square mddpg-planner: no recipe training/recipes/square-planner.toml" in done.stderr
