@@ -101,9 +101,9 @@ def held_out(actor: Path, scene: str, episodes: int) -> dict[str, float]:
     return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])
 
 
-def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str) -> Path:
+def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str, held_out_episodes: int = 100) -> Path:
     """Copy each run's held-out evaluation log (``eval.csv``), ``config.json`` and its actor's measurements on
-    ``docs/results.md``'s episodes (``heldout_<episodes>.json``, ``training.heldout``) to ``deck_sim/trained/logs/
+    the first ``held_out_episodes`` of ``docs/results.md``'s episodes (``training.heldout``) to ``deck_sim/trained/logs/
     <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
     learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
     further seeds) in ``seed<seed>/`` below it (``member_logs``)."""
@@ -115,7 +115,7 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str) -
             shutil.rmtree(old)
     for i, (run, seed) in enumerate(zip(runs, seeds, strict=True)):
         folder = logs if i == 0 else logs / f"seed{seed}"
-        names = ["eval.csv", "config.json", *(f.name for f in sorted(run.glob(held_out_file("*"))))]
+        names = ["eval.csv", "config.json", held_out_file(held_out_episodes)]  # (not other counts' caches)
         for stale in folder.glob(held_out_file("*")):  # an earlier run's measurements
             stale.unlink()
         for name in names:
@@ -326,7 +326,7 @@ def main() -> None:
                 if algo in DDPG_ALGOS:  # each seed on docs/results.md's episodes, shipped beside the actor
                     held_out_record(run, args.episodes_per_run)
             ship(runs, dest)
-            ship_logs(runs, seeds, scene, algo)
+            ship_logs(runs, seeds, scene, algo, args.episodes_per_run)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = load_actor(dest).meta
