@@ -6,6 +6,8 @@ time every ``env.step`` (resets are timed apart); right after each, time raw
 control steps per second, the ratio to the raw floor, the real-time factor (simulated seconds per wall second),
 the machine and its load average over the last minute after each scene (other jobs on a shared machine slow
 Python more than MuJoCo, so quote the load with the figures). Single-threaded (OMP/MKL threads pinned to 1).
+A multi-aircraft scene (``deck1-multi``) gives every aircraft its own random walk; when its single-aircraft scene
+was measured in the same run, the ratio of their median steps is printed after the table.
 
     python benchmarks/step_speed.py [--scenes deck1,deck2,square] [--steps 2000] [--predictor constant_velocity]
                                     [--repeat 1]
@@ -46,13 +48,14 @@ def bench_scene(name: str, steps: int, predictor: str, seed: int = 0) -> dict[st
     period = env.task.spec.episode.control_period
     snap, work = mujoco.MjData(m), mujoco.MjData(m)
     step_times, raw_times = [], []
-    action = np.array([0.8, 0.0])
+    k = env.task.spec.agents.count
+    action = np.tile([0.8, 0.0], (k, 1))
     for i in range(steps + 50):
         # a smooth random walk of actions, biased forward, so that episodes last
-        action = np.clip(0.8 * action + 0.2 * rng.uniform(-1, 1, 2) + np.array([0.1, 0.0]), -1, 1)
+        action = np.clip(0.8 * action + 0.2 * rng.uniform(-1, 1, (k, 2)) + np.array([0.1, 0.0]), -1, 1)
         mujoco.mj_copyData(snap, m, d)
         t0 = time.perf_counter()
-        ts = env.step(action)
+        ts = env.step(action[0] if k == 1 else action)
         dt = time.perf_counter() - t0
         mujoco.mj_copyData(work, m, snap)
         t0 = time.perf_counter()
@@ -97,17 +100,25 @@ def main() -> None:
     )
     print("median over steps; (mean) includes the rare steps where movers replan their routes")
     header = (
-        f"{'scene':8s} {'dt':>7s} {'sub':>4s} {'step ms':>8s} {'steps/s':>8s} {'raw ms':>7s} {'x raw':>6s} "
+        f"{'scene':12s} {'dt':>7s} {'sub':>4s} {'step ms':>8s} {'steps/s':>8s} {'raw ms':>7s} {'x raw':>6s} "
         f"{'(mean)':>7s} {'x realtime':>10s} {'(mean)':>7s} {'reset ms':>9s} {'load':>5s}"
     )
     print(header)
+    medians: dict[str, list[float]] = {}
     for name in [n for n in args.scenes.split(",") for _ in range(args.repeat)]:
         r = bench_scene(name, args.steps, args.predictor)
+        medians.setdefault(name, []).append(r["step_ms"])
         print(
-            f"{name:8s} {r['timestep']:7.4f} {r['substeps']:4.0f} {r['step_ms']:8.3f} {r['steps_per_s']:8.0f} "
+            f"{name:12s} {r['timestep']:7.4f} {r['substeps']:4.0f} {r['step_ms']:8.3f} {r['steps_per_s']:8.0f} "
             f"{r['raw_ms']:7.3f} {r['ratio']:6.2f} {r['ratio_mean']:7.2f} {r['realtime']:10.0f} "
             f"{r['realtime_mean']:7.0f} {r['reset_ms']:9.1f} {os.getloadavg()[0]:5.2f}"
         )
+    for name, times in medians.items():
+        single = name.removesuffix("-multi")
+        if single != name and single in medians:
+            k = deck_sim.load_scene(name).agents.count
+            ratio = float(np.median(times)) / float(np.median(medians[single]))
+            print(f"{name} ({k} aircraft) / {single} (one): median control step {ratio:.2f}x")
 
 
 if __name__ == "__main__":

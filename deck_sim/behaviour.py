@@ -256,7 +256,7 @@ class MoverBehaviour:
     # -- the per-step command (the hot path: a few numpy calls over all movers, the rest plain Python floats) --
     def command(
         self, t: float, dt: float, positions: np.ndarray, headings: np.ndarray, speeds: np.ndarray,
-        agent_xy: np.ndarray, agent_yaw: float = 0.0,
+        agent_xy: np.ndarray, agent_yaw: float | np.ndarray = 0.0,
     ) -> MoverCommands:
         """Desired motion of every mover for the control step starting at time ``t`` (seconds): ``command_lists``
         (same arguments) as arrays."""
@@ -265,7 +265,7 @@ class MoverBehaviour:
 
     def command_lists(
         self, t: float, dt: float, positions: np.ndarray, headings: np.ndarray, speeds: np.ndarray,
-        agent_xy: np.ndarray, agent_yaw: float = 0.0,
+        agent_xy: np.ndarray, agent_yaw: float | np.ndarray = 0.0,
     ) -> tuple[list[float], list[float], list[tuple[float, float]]]:
         """Desired motion of every mover for the control step starting at time ``t`` (seconds), as plain lists
         (the task's per-step call): forward speed (n) m/s, turn rate (n) rad/s (zero for pedestrians) and
@@ -274,8 +274,9 @@ class MoverBehaviour:
         Args:
             dt: the control period, seconds.
             positions: (n, 2) metres; headings: (n,) radians; speeds: (n,) m/s, all measured now.
-            agent_xy: (2,) the agent's position, metres.
-            agent_yaw: the agent's heading, radians (turns ``agent_parts``).
+            agent_xy: (2,) the agent's position, metres; (k, 2) every agent's when several act at once (the
+                movers yield to each, all of the same shape).
+            agent_yaw: the agent's heading, radians (turns ``agent_parts``); (k,) with several agents.
 
         Only the transcendental functions run in numpy, one call over all movers each as in the vectorised
         version this replaced (so their results stay bit-identical); the rest is Python float arithmetic in the
@@ -467,16 +468,23 @@ class MoverBehaviour:
             if head_on and j < i:
                 head_on_lower[i] = True
 
-        # the agent, by its parts turned to its heading (only when it is near some mover)
+        # the agent (each agent, when several act at once), by its parts turned to its heading (only when it is
+        # near some mover)
         for_agent = [False] * n
         if p.yield_to_agent:
-            ax0, ay0 = float(agent_xy[0]), float(agent_xy[1])
-            rel_sq = [(x - ax0) * (x - ax0) + (y - ay0) * (y - ay0) for x, y in pos]
+            if np.ndim(agent_xy) == 1:
+                agents = [(agent_xy, agent_yaw)]
+            else:
+                agents = list(zip(agent_xy, np.asarray(agent_yaw, dtype=float).tolist(), strict=True))
             test_sq, near_sq = self._agent_test_sq_l, self._agent_near_sq_l
-            near = [i for i in range(n) if rel_sq[i] < test_sq[i]]
-            if any(rel_sq[i] < near_sq[i] for i in near):
-                parts = self._agent_frame(agent_xy, agent_yaw)
-                gain, vmax = self._agent_brake_gain, self._agent_brake_vmax
+            gain, vmax = self._agent_brake_gain, self._agent_brake_vmax
+            for a_xy, a_yaw in agents:
+                ax0, ay0 = float(a_xy[0]), float(a_xy[1])
+                rel_sq = [(x - ax0) * (x - ax0) + (y - ay0) * (y - ay0) for x, y in pos]
+                near = [i for i in range(n) if rel_sq[i] < test_sq[i] and not for_agent[i]]
+                if not any(rel_sq[i] < near_sq[i] for i in near):
+                    continue
+                parts = self._agent_frame(a_xy, a_yaw)
                 for i in near:
                     v = min(abs(speeds[i]), vmax)
                     extra = v * v * gain if gain else 0.0  # its stopping distance (0 with a fixed reach)

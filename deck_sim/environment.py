@@ -96,14 +96,20 @@ def make_environment(
     max_reset_attempts: int = 1,
     plain_observations: bool = True,
 ) -> composer.Environment:
-    """A composer environment for a scene spec.
+    """A composer environment for a scene spec (the multi-agent task, ``tasks.multi.MultiNavigate``, for a scene
+    with ``agents.count`` above 1).
 
     The task's control period (``spec.episode.control_period``) is composer's only substep: the physics substeps
     are fused inside the task (see ``deck_sim.tasks.physics_step``). Physics divergence ends the episode cleanly
     (the task flags it in ``task.last_info["diverged"]``) instead of raising. ``plain_observations`` takes the
     observation through ``_PlainUpdater`` (the same arrays as composer's updater, cheaper).
     """
-    task = Navigate(spec, predictor=predictor)
+    if spec.multi_agent:
+        from deck_sim.tasks.multi import MultiNavigate
+
+        task: Navigate = MultiNavigate(spec, predictor=predictor)
+    else:
+        task = Navigate(spec, predictor=predictor)
     return (DeckEnvironment if plain_observations else composer.Environment)(
         task,
         time_limit=spec.episode.time_limit,
@@ -119,7 +125,8 @@ def make_environment(
 def load(
     name: str | Path, seed: int | None = None, predictor: Predictor | None = None, **overrides: Any
 ) -> composer.Environment:
-    """Load a scene by name (``deck1``, ``deck2``, ``square``) or TOML path as a composer environment.
+    """Load a scene by name (``deck1``, ``deck2``, ``square``, ``deck1-multi``, ``deck2-multi``) or TOML path as a
+    composer environment.
 
     Args:
         name: scene name or path to a scene TOML file.

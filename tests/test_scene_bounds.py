@@ -21,6 +21,7 @@ from deck_sim.scenes import (
     MAX_PHYSICS_TIMESTEP,
     SECTIONS,
     AgentSpec,
+    AgentsSpec,
     EpisodeSpec,
     MoverSpec,
     RewardSpec,
@@ -325,7 +326,14 @@ print("collided")
 
 # -- property tests: any bad value of any field is refused naming the field, or loads -----------------------------
 
-_SPECS = {"agent": AgentSpec, "static": StaticSpec, "movers": MoverSpec, "reward": RewardSpec, "episode": EpisodeSpec}
+_SPECS = {
+    "agent": AgentSpec,
+    "static": StaticSpec,
+    "movers": MoverSpec,
+    "reward": RewardSpec,
+    "episode": EpisodeSpec,
+    "agents": AgentsSpec,
+}
 FIELDS = [(section, f.name) for section in SECTIONS for f in dataclasses.fields(_SPECS[section])]
 
 _NUMBERS = st.one_of(

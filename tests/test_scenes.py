@@ -22,14 +22,15 @@ def _deck1() -> dict:
 
 
 def test_shipped_scenes_load():
-    assert scene_names() == ["deck1", "deck2", "square"]
+    assert scene_names() == ["deck1", "deck1-multi", "deck2", "deck2-multi", "square"]
     for name in scene_names():
         spec = load_scene(name)
         assert spec.name == name
+        assert spec.multi_agent == name.endswith("-multi")
 
 
 def test_unknown_scene_name_is_named():
-    with pytest.raises(SceneSpecError, match="unknown scene 'deck9'.*deck1, deck2, square"):
+    with pytest.raises(SceneSpecError, match="unknown scene 'deck9'.*deck1, deck1-multi, deck2, deck2-multi, square"):
         deck_sim.load("deck9")
 
 
@@ -157,8 +158,9 @@ def test_dump_scene_reads_back_equal_with_overrides():
     from deck_sim.scenes import dump_scene
 
     specs = [load_scene(name) for name in scene_names()]
-    specs += [load_scene(name, episode__predictor="oracle", reward__goal=123.25) for name in scene_names()]
-    specs.append(load_scene("deck1", movers__tractors=2))  # counts changed: no paper_counts any more
+    specs += [load_scene(name, episode__predictor="mpc", reward__goal=123.25) for name in scene_names()]
+    specs.append(load_scene("deck1", movers__tractors=2))
+    specs.append(load_scene("deck1-multi", agents__count=7))  # counts changed: no paper_counts any more
     for spec in specs:
         assert parse_scene(tomllib.loads(dump_scene(spec)), "dumped") == spec
 

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from deck_sim.scenes.validation import (  # noqa: F401  (the bounds are part of this package's API)
     MAX_ACCEL,
+    MAX_AGENTS,
     MAX_HISTORY,
     MAX_HORIZON,
     MAX_MOVERS,
@@ -72,6 +73,18 @@ class AgentSpec:
     site lies within the two bounds (give or take the jitters)."""
     max_target_distance: float = 1e9
     """Metres: upper bound on the straight-line start-target distance; >= ``min_target_distance``."""
+
+
+@dataclass(frozen=True)
+class AgentsSpec:
+    """How many aircraft learn and act at once (the multi-agent scenes); every one is an ``[agent]`` as that
+    section describes it, each with its own start and target, drawn without repeats from ``agent.start_sites``
+    and ``agent.target_sites``. The section is optional: a scene without it has one agent."""
+
+    count: int = 1
+    """Learning aircraft per episode: 1 to ``MAX_AGENTS``; above 1 the vehicle must be the ``aircraft``, and
+    ``agent.start_sites`` and ``agent.target_sites`` must each name at least ``count`` sites (no two aircraft start
+    or aim at the same one)."""
 
 
 @dataclass(frozen=True)
@@ -296,6 +309,14 @@ class SceneSpec:
     episode: EpisodeSpec
     paper_counts: tuple[int, int] = field(default=(0, 0))
     """(static, dynamic) obstacle counts of the paper's scene, checked against the spec."""
+    agents: AgentsSpec = field(default_factory=AgentsSpec)
+    """How many aircraft act at once (``[agents]``, optional)."""
+
+    @property
+    def multi_agent(self) -> bool:
+        """Whether several aircraft act at once (``agents.count`` above 1): the scene loads as the multi-agent
+        task (``deck_sim.tasks.multi.MultiNavigate``)."""
+        return self.agents.count > 1
 
 
 _SECTIONS = {
@@ -304,7 +325,10 @@ _SECTIONS = {
     "movers": MoverSpec,
     "reward": RewardSpec,
     "episode": EpisodeSpec,
+    "agents": AgentsSpec,
 }
+_OPTIONAL_SECTIONS = {"agents"}
+"""Sections a scene file may leave out (their fields' defaults apply)."""
 SECTIONS = tuple(_SECTIONS)
 """The sections of a scene file, in order (the first part of an override ``section__field``)."""
 
@@ -382,6 +406,8 @@ def parse_scene(data: dict[str, Any], src: str = "<scene>") -> SceneSpec:
     top = _build(SceneSpec, data, src)
     sections = {}
     for key, cls in _SECTIONS.items():
+        if key not in data and key in _OPTIONAL_SECTIONS:
+            data = {**data, key: {}}
         if key not in data:
             raise SceneSpecError(f"{src}: missing section [{key}]")
         sections[key] = cls(**_build(cls, data[key], f"{src} [{key}]"))

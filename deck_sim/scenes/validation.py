@@ -51,6 +51,10 @@ MAX_TAXIING_AIRCRAFT = 16
 overlapping at the origin exhaust MuJoCo's memory when the model is compiled (the mover total stays within
 ``MAX_MOVERS``)."""
 
+MAX_AGENTS = 8
+"""The most aircraft ``agents.count`` may put on the surface at once (the deck's start sites and targets hold eight
+apart from each other; every aircraft's observation carries every other one among its dynamic obstacles)."""
+
 MAX_SCATTERED = 64
 """The most standing groups ``static.scattered`` may place."""
 
@@ -113,6 +117,7 @@ def validate(spec: SceneSpec, src: str) -> None:
     _validate_static(spec, f"{src} [static]", arena)
     _validate_reward(spec, f"{src} [reward]", arena)
     _validate_episode(spec, f"{src} [episode]", arena)
+    _validate_agents(spec, f"{src} [agents]")
     s, m = spec.static, spec.movers
     if spec.paper_counts != (0, 0):
         _check(
@@ -197,6 +202,44 @@ def _validate_agent(spec: SceneSpec, w: str, arena: ArenaFacts, top_speed: dict[
         raise SceneSpecError(
             f"{w}.{name}: no site of agent.target_sites lies {a.min_target_distance:g}-{a.max_target_distance:g} m "
             f"from the start site {start!r} of agent.start_sites (with the jitters)"
+        )
+
+
+def _validate_agents(spec: SceneSpec, w: str) -> None:
+    """The number of aircraft acting at once, against the vehicle, the sites and the MPC predictor's capacity."""
+    k, a = spec.agents.count, spec.agent
+    _check_range(k, 1, MAX_AGENTS, f"{w}.count", "(MAX_AGENTS)")
+    if k == 1:
+        return
+    _check(a.vehicle == "aircraft", f"{w}.count", f"several agents must be aircraft, agent.vehicle is {a.vehicle!r}")
+    for name in ("start_sites", "target_sites"):
+        sites = getattr(a, name)
+        _check(
+            len(set(sites)) >= k,
+            f"{w}.count",
+            f"{k} aircraft need {k} distinct agent.{name} (one each), the scene names {len(set(sites))}",
+        )
+    _check(
+        spec.episode.predictor != "oracle",
+        f"{w}.count",
+        "the 'oracle' predictor simulates the movers ahead; the other aircraft's futures are their policies' choice, "
+        "so several agents need episode.predictor 'none', 'constant_velocity' or 'mpc'",
+    )
+    if spec.episode.predictor == "mpc":
+        from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
+
+        mpc = MPCPredictorSettings
+        _check(
+            spec.movers.count + k <= mpc.max_movers,
+            f"{w}.count",
+            f"'mpc' is compiled for at most {mpc.max_movers} predicted vehicles; {spec.movers.count} movers and {k} "
+            f"aircraft (each predicted for the others) make {spec.movers.count + k}",
+        )
+        _check(
+            len(spec.movers.spots) + k <= mpc.max_spots,
+            f"{w}.count",
+            f"'mpc' is compiled for at most {mpc.max_spots} spots; movers.spots names {len(spec.movers.spots)} and "
+            f"the {k} aircraft's targets are spots too: {len(spec.movers.spots) + k}",
         )
 
 

@@ -28,7 +28,11 @@ class LayoutError(ValueError):
 
 @dataclass
 class Layout:
-    """Where everything starts in one episode (planar, metres and radians)."""
+    """Where everything starts in one episode (planar, metres and radians).
+
+    ``agent_xy``, ``agent_yaw``, ``target_xy`` and ``target_site`` are the (first) agent's; ``agents_xy`` (k, 2),
+    ``agents_yaw`` (k,), ``targets_xy`` (k, 2) and ``target_sites`` hold every agent's of a multi-agent scene (the
+    one agent's otherwise)."""
 
     agent_xy: np.ndarray
     agent_yaw: float
@@ -39,6 +43,17 @@ class Layout:
     mover_spot: np.ndarray  # (n,) spot index or -1
     target_site: str = ""
     static_sites: list[str] = field(default_factory=list)
+    agents_xy: np.ndarray | None = None
+    agents_yaw: np.ndarray | None = None
+    targets_xy: np.ndarray | None = None
+    target_sites: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.agents_xy is None:
+            self.agents_xy = np.asarray(self.agent_xy, dtype=float).reshape(1, 2)
+            self.agents_yaw = np.array([self.agent_yaw], dtype=float)
+            self.targets_xy = np.asarray(self.target_xy, dtype=float).reshape(1, 2)
+            self.target_sites = [self.target_site]
 
 
 def yaw_quat(yaw: float) -> np.ndarray:
@@ -97,9 +112,14 @@ def sample_layout(
     """
     lo, hi = arena.bounds
     fixed = arena.fixed_obstacles()
-    agent_xy, agent_yaw, target_xy, target_site = _start_and_target(spec, arena, rng)
+    if spec.agents.count == 1:
+        agent_xy, agent_yaw, target_xy, target_site = _start_and_target(spec, arena, rng)
+        starts, yaws, targets, target_sites = agent_xy[None], np.array([agent_yaw]), target_xy[None], [target_site]
+    else:
+        starts, yaws, targets, target_sites = _starts_and_targets(spec, arena, rng)
+        agent_xy, agent_yaw, target_xy, target_site = starts[0], float(yaws[0]), targets[0], target_sites[0]
 
-    chosen = _slotted_sites(spec, arena, slotted_footprint, agent_xy, target_xy, rng)
+    chosen = _slotted_sites(spec, arena, slotted_footprint, starts, targets, rng)
     static_xy = [s.xy for s in chosen]
     static_yaw = [s.yaw for s in chosen]
     kind_fp = slotted_footprint
@@ -115,7 +135,9 @@ def sample_layout(
         ]
     )
 
-    keep_clear = [(agent_xy, spec.agent.radius + 1.0), (target_xy, spec.agent.goal_radius + 1.0)]
+    keep_clear = []
+    for start, target in zip(starts, targets, strict=True):
+        keep_clear += [(start, spec.agent.radius + 1.0), (target, spec.agent.goal_radius + 1.0)]
     keep_clear += [(s, 1.5) for s in spot_xy]
     scattered = _scattered_groups(spec, lo, hi, statics_fp, keep_clear, rng)
     static_xy += scattered
@@ -133,7 +155,7 @@ def sample_layout(
     )
 
     mover_xy, mover_spot = _place_movers(
-        spec, lo, hi, all_fp, agent_xy, target_xy, spot_xy, mover_spawn_radius, mover_names, rng
+        spec, lo, hi, all_fp, starts, targets, spot_xy, mover_spawn_radius, mover_names, rng
     )
     return Layout(
         agent_xy=agent_xy,
@@ -145,6 +167,10 @@ def sample_layout(
         mover_spot=mover_spot,
         target_site=target_site,
         static_sites=[s.name for s in chosen],
+        agents_xy=starts,
+        agents_yaw=yaws,
+        targets_xy=targets,
+        target_sites=target_sites,
     )
 
 
@@ -169,24 +195,77 @@ def _start_and_target(
     )
 
 
+_AGENT_SPACING = 2.0
+"""Metres between the discs of two aircraft at their starts, and (less the goal radius) at their targets, in a
+multi-agent scene."""
+
+
+def _starts_and_targets(
+    spec: SceneSpec, arena: _SiteArena, rng: np.random.Generator, attempts: int = 500
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """Every aircraft's start (positions (k, 2), yaws (k,)) near its own start site and its target (k, 2) near its
+    own target site, each target within the scene's distance range of its aircraft's start; no two discs of the
+    agent's radius closer than ``_AGENT_SPACING`` at the starts, nor two targets closer than two radii. Returns
+    them with the target sites' names.
+
+    Raises:
+        LayoutError: no such draw in ``attempts`` tries.
+    """
+    a, k = spec.agent, spec.agents.count
+    starts_all = [arena.site(s) for s in a.start_sites]
+    targets_all = [arena.site(s) for s in a.target_sites]
+    for _ in range(attempts):
+        chosen = [starts_all[i] for i in rng.choice(len(starts_all), k, replace=False)]
+        xy = np.array([s.xy for s in chosen]) + rng.uniform(-a.start_jitter, a.start_jitter, (k, 2))
+        yaw = np.array([s.yaw for s in chosen]) + rng.uniform(-a.yaw_jitter, a.yaw_jitter, k)
+        gaps = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.eye(k) * 1e9
+        if gaps.min() <= 2 * a.radius + _AGENT_SPACING:
+            continue
+        free = list(rng.permutation(len(targets_all)))
+        targets, names = np.zeros((k, 2)), []
+        for i in range(k):
+            for j in list(free):
+                site = targets_all[j]
+                t = site.xy + rng.uniform(-a.target_jitter, a.target_jitter, 2)
+                d = float(np.linalg.norm(t - xy[i]))
+                spaced = all(np.linalg.norm(t - q) > 2 * a.radius for q in targets[:i])
+                if a.min_target_distance <= d <= a.max_target_distance and spaced:
+                    targets[i] = t
+                    names.append(site.name)
+                    free.remove(j)
+                    break
+            else:
+                break
+        if len(names) == k:
+            return xy, yaw, targets, names
+    raise LayoutError(
+        f"{spec.name}: could not give {k} aircraft distinct starts among {list(a.start_sites)} (discs of "
+        f"{a.radius} m apart) and targets among {list(a.target_sites)} "
+        f"{a.min_target_distance}-{a.max_target_distance} m away in {attempts} tries"
+    )
+
+
 def _slotted_sites(
     spec: SceneSpec,
     arena: _SiteArena,
     kind_fp: tuple[np.ndarray, np.ndarray, float] | None,
-    agent_xy: np.ndarray,
-    target_xy: np.ndarray,
+    starts: np.ndarray,
+    targets: np.ndarray,
     rng: np.random.Generator,
 ) -> list[Site2D]:
-    """The slots of the slotted static obstacles, drawn among those clear of the start and the target, in the
-    order of the arena's slots."""
+    """The slots of the slotted static obstacles, drawn among those clear of every start (k, 2) and target
+    (k, 2), in the order of the arena's slots."""
     a = spec.agent
     slots = arena.sites_with_prefix(spec.static.slot_prefix)
     free = []
     for s in slots if kind_fp is not None else []:
         fp = Footprints(np.array([[s.x, s.y]]), kind_fp[1][None], np.array([s.yaw]), np.array([kind_fp[2]]))
-        d_start = fp.distance(agent_xy)[0, 0]
-        d_target = fp.distance(target_xy)[0, 0]
-        if d_start > a.radius + 2.0 and d_target > a.radius + a.goal_radius:
+        clear = True
+        for agent_xy, target_xy in zip(starts, targets, strict=True):
+            d_start = fp.distance(agent_xy)[0, 0]
+            d_target = fp.distance(target_xy)[0, 0]
+            clear = clear and d_start > a.radius + 2.0 and d_target > a.radius + a.goal_radius
+        if clear:
             free.append(s)
     if len(free) < spec.static.slotted:
         raise LayoutError(
@@ -231,16 +310,16 @@ def _place_movers(
     lo: np.ndarray,
     hi: np.ndarray,
     all_fp: Footprints,
-    agent_xy: np.ndarray,
-    target_xy: np.ndarray,
+    agents_xy: np.ndarray,
+    targets_xy: np.ndarray,
     spot_xy: np.ndarray,
     spawn_radius: np.ndarray,
     names: list[str],
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The movers' start positions (n, 2) and spot indices (n,; -1 off a spot): at distinct spots, near the agent
-    (``movers.spawn_near_agent`` of them) or anywhere free (``movers.spawn_random``, and any mover left without a
-    usable spot)."""
+    """The movers' start positions (n, 2) and spot indices (n,; -1 off a spot): at distinct spots, near the
+    (first) agent (``movers.spawn_near_agent`` of them) or anywhere free (``movers.spawn_random``, and any mover
+    left without a usable spot), clear of every agent's start and target (``agents_xy``, ``targets_xy``: (k, 2))."""
     a, mv = spec.agent, spec.movers
     n = len(names)
     mover_xy = np.zeros((n, 2))
@@ -249,7 +328,8 @@ def _place_movers(
     near = set(order[: mv.spawn_near_agent].tolist())
     anywhere = set(order[mv.spawn_near_agent : mv.spawn_near_agent + mv.spawn_random].tolist())
     spot_order = list(rng.permutation(len(spot_xy)))
-    placed: list[tuple[np.ndarray, float]] = [(agent_xy, a.radius)]
+    placed: list[tuple[np.ndarray, float]] = [(xy, a.radius) for xy in agents_xy]
+    agent_xy = agents_xy[0]
     for i in range(n):
         r = spawn_radius[i]  # circumscribed: safe whatever the initial heading
 
@@ -258,7 +338,7 @@ def _place_movers(
                 np.all(p > lo + r)
                 and np.all(p < hi - r)
                 and all_fp.distance(p).min(initial=np.inf) > r + 0.5
-                and np.linalg.norm(p - target_xy) > a.goal_radius + r + 2.0
+                and all(np.linalg.norm(p - t) > a.goal_radius + r + 2.0 for t in targets_xy)
                 and all(np.linalg.norm(p - q) > r + rq + 2.0 for q, rq in placed)
             )
 

@@ -34,6 +34,8 @@ class MoverDriver:
         behaviour: the movers' behaviour.
         spot_xy: (k, 2) the movers' spots, metres.
         radii: (n,) every mover's disc radius for its routes, metres.
+        n_agents: how many agents lead the state's rows (``FusedStepper.read_state``); the movers yield to every
+            one of them.
     """
 
     def __init__(
@@ -44,8 +46,10 @@ class MoverDriver:
         behaviour: MoverBehaviour,
         spot_xy: np.ndarray,
         radii: np.ndarray,
+        n_agents: int = 1,
     ) -> None:
         self._m, self._d = physics.model.ptr, physics.data.ptr
+        self._k = n_agents
         self._movers = movers
         self._behaviour = behaviour
         self._spot_xy = spot_xy
@@ -107,18 +111,19 @@ class MoverDriver:
                 mover.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
 
     def command(self, t: float, st: dict[str, np.ndarray]) -> None:
-        """Ask the behaviour for every mover's command at time ``t`` (s) in the state ``st`` (the agent's row
+        """Ask the behaviour for every mover's command at time ``t`` (s) in the state ``st`` (the agents' rows
         first, as ``FusedStepper.read_state`` gives it) and write the movers' controls."""
         if not self._movers:
             return
+        k = self._k
         speed, yaw_rate, velocity = self._behaviour.command_lists(
             t,
             self._period,
-            st["xy"][1:],
-            st["yaw"][1:],
-            st["forward_speed"][1:],
-            st["xy"][0],
-            float(st["yaw"][0]),
+            st["xy"][k:],
+            st["yaw"][k:],
+            st["forward_speed"][k:],
+            st["xy"][0] if k == 1 else st["xy"][:k],
+            float(st["yaw"][0]) if k == 1 else st["yaw"][:k],
         )
         rows = self._rows
         ctrl: list[float] = []  # in the order of ``_ctrl_flat``
@@ -130,7 +135,7 @@ class MoverDriver:
         if rows["aircraft"]:
             speeds = st["forward_speed"].tolist()
             for i in rows["aircraft"]:
-                ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[1 + i], self._limits)
+                ac = speed_and_yaw_rate(speed[i], yaw_rate[i], speeds[k + i], self._limits)
                 ctrl += (ac.steer, ac.thrust, ac.brake, ac.brake)
         if rows["pedestrian"]:
             for i in rows["pedestrian"]:
@@ -150,7 +155,7 @@ class MoverDriver:
                 "%s: mover %s left the surface at %s; placed back at its next spot %s",
                 self._scene,
                 mover.mjcf_model.model,
-                st["xy"][1 + i].round(1),
+                st["xy"][self._k + i].round(1),
                 xy.round(1),
             )
             if isinstance(mover, Pedestrian):

@@ -57,6 +57,9 @@ __all__ = ["InvalidActionError", "Layout", "LayoutError", "Navigate"]
 
 log = logging.getLogger(__name__)
 
+_AGENT_COLOURS = [(0.1, 0.9, 0.2), (0.2, 0.5, 1.0), (1.0, 0.6, 0.1), (0.9, 0.2, 0.9)]
+"""RGB of the target markers of a multi-agent scene's aircraft, in turn."""
+
 
 class Navigate(composer.Task):
     """Reach a target among static obstacles and movers, on the deck or in the square.
@@ -74,14 +77,19 @@ class Navigate(composer.Task):
         for name in (*spec.agent.start_sites, *spec.agent.target_sites, *spec.movers.spots):
             arena.site(name)  # raises naming the site if the arena lacks it
 
-        # the agent
+        # the agent (the first of ``agents.count`` aircraft in a multi-agent scene: ``aircraft_0`` ...)
+        self._n_agents = k = spec.agents.count
         if spec.agent.vehicle == "aircraft":
-            self._agent: Aircraft | Pedestrian = Aircraft("agent")
-            arena.add_free_entity(self._agent)
+            names = ["agent"] if k == 1 else [f"aircraft_{i}" for i in range(k)]
+            self._agents: list[Aircraft | Pedestrian] = [Aircraft(name) for name in names]
+            self._agent: Aircraft | Pedestrian = self._agents[0]
+            for agent in self._agents:
+                arena.add_free_entity(agent)
             # the nose and tail stick out of the wing-span disc: the scripted planner may check them too
             self._agent_circles = end_circles(self._agent.parts, spec.agent.radius)
         else:
             self._agent = Pedestrian("agent", rgba=(0.85, 0.15, 0.1, 1.0))
+            self._agents = [self._agent]
             arena.attach(self._agent)
             self._agent_circles = np.zeros((0, 3))
         self._aircraft_limits: AircraftLimits | None = None
@@ -109,18 +117,23 @@ class Navigate(composer.Task):
             else:
                 arena.add_free_entity(mover)
 
-        # target marker and cameras
-        self._target_body = arena.mjcf_model.worldbody.add("body", name="target")
-        self._target_body.add(
-            "geom",
-            name="target_visual",
-            type="cylinder",
-            size=[spec.agent.goal_radius, 0.03],
-            rgba=[0.1, 0.9, 0.2, 0.5],
-            contype=0,
-            conaffinity=0,
-            group=2,
-        )
+        # target markers (one per aircraft: ``target``, or ``target_0`` ...) and cameras
+        self._target_bodies = []
+        for i in range(k):
+            suffix = "" if k == 1 else f"_{i}"
+            body = arena.mjcf_model.worldbody.add("body", name=f"target{suffix}")
+            body.add(
+                "geom",
+                name=f"target{suffix}_visual",
+                type="cylinder",
+                size=[spec.agent.goal_radius, 0.03],
+                rgba=[0.1, 0.9, 0.2, 0.5] if k == 1 else [*_AGENT_COLOURS[i % len(_AGENT_COLOURS)], 0.5],
+                contype=0,
+                conaffinity=0,
+                group=2,
+            )
+            self._target_bodies.append(body)
+        self._target_body = self._target_bodies[0]
         lo, hi = arena.bounds
         centre, extent = (lo + hi) / 2.0, (hi - lo) * 1.06
         height = 1.5 * float(extent[0])
@@ -147,9 +160,13 @@ class Navigate(composer.Task):
         )
         # how many contacts the agent's own body has (its wheels are child bodies, so the deck does not count):
         # MuJoCo counts them in every step, so the contact list is read only when there is something to name
-        self._contact_sensor = self._agent.mjcf_model.sensor.add(
-            "contact", name="obstacle_contacts", body1=self._agent.root_body, data="found", reduce="mindist"
-        )
+        self._contact_sensors = [
+            agent.mjcf_model.sensor.add(
+                "contact", name="obstacle_contacts", body1=agent.root_body, data="found", reduce="mindist"
+            )
+            for agent in self._agents
+        ]
+        self._contact_sensor = self._contact_sensors[0]
 
         # composer sees one substep per control step; after_compile restores the real timestep
         self._n_sub = int(round(ep.control_period / ep.physics_timestep))
@@ -169,16 +186,22 @@ class Navigate(composer.Task):
         self._no_fallback = np.zeros(len(self._kinds), dtype=bool)  # (shared by the fast path's predictions)
         self._mover_half = np.array([m.footprint[1] for m in self._movers]).reshape(-1, 2)
         self._mover_radius_fp = np.array([m.footprint[2] for m in self._movers])
+        # what an agent observes as dynamic obstacles: the movers, then (with several agents) the other aircraft
+        self._dyn_half, self._dyn_radius = self._mover_half, self._mover_radius_fp
+        if k > 1:
+            _, agent_half, agent_round = self._agent.footprint
+            self._dyn_half = np.concatenate([self._mover_half, np.repeat(np.asarray(agent_half)[None], k - 1, 0)])
+            self._dyn_radius = np.concatenate([self._mover_radius_fp, np.full(k - 1, float(agent_round))])
         self._agent_frame = spec.episode.frame == "agent"  # observation and action in the agent's axes
         self._route_steps = spec.episode.route_steps  # points of the observed route; 0: not observed
         self._obs_config = ObservationConfig(
             horizon=self._horizon,
             bounds=arena.bounds,
-            mover_half=self._mover_half,
-            mover_radius=self._mover_radius_fp,
+            mover_half=self._dyn_half,
+            mover_radius=self._dyn_radius,
             predicted_from_agent=spec.episode.predicted_frame == "agent",
             obstacle_shape=spec.episode.obstacle_shape,
-            mover_size=self._mover_half + self._mover_radius_fp[:, None] if spec.episode.mover_size else None,
+            mover_size=self._dyn_half + self._dyn_radius[:, None] if spec.episode.mover_size else None,
             near=spec.episode.near_steps * spec.agent.reach,  # metres of the near field; 0: not observed
             near_obstacles=spec.episode.near_obstacles,
             route_steps=self._route_steps,
@@ -262,7 +285,7 @@ class Navigate(composer.Task):
 
     def _build_observables(self) -> None:
         m = len(self._statics) + len(self._arena.fixed_obstacle_geoms)
-        self._obs_shapes = shapes = observation_shapes(self._obs_config, m, len(self._movers))
+        self._obs_shapes = shapes = observation_shapes(self._obs_config, m, len(self._dyn_half))
         self._obs = {k: np.zeros(v) for k, v in shapes.items()}  # until the first episode starts
         self._task_observables = {}
         for key in shapes:
@@ -291,19 +314,20 @@ class Navigate(composer.Task):
         self._stepper = FusedStepper(
             physics,
             self._arena,
-            self._agent,
+            self._agents,
             self._movers,
             self._statics,
-            self._contact_sensor,
+            self._contact_sensors,
             self._n_sub,
             self.spec.episode.collision_checks,
         )
-        self._ctrl_agent = as_slice(physics.bind(list(self._agent.actuators)).element_id)
+        self._ctrl_agents = [as_slice(physics.bind(list(a.actuators)).element_id) for a in self._agents]
+        self._ctrl_agent = self._ctrl_agents[0]
         # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
             self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))
         self._mover_driver = MoverDriver(
-            physics, self.spec, self._movers, self._behaviour, self._spot_xy, self._mover_disc
+            physics, self.spec, self._movers, self._behaviour, self._spot_xy, self._mover_disc, self._n_agents
         )
 
     # -- episode set-up --------------------------------------------------------------------------------------
@@ -330,25 +354,7 @@ class Navigate(composer.Task):
         layout = self.sample_layout(rng)
         self.layout = layout
         spec = self.spec
-        if isinstance(self._agent, Aircraft):
-            # the attachment frame on the surface: the model's own root sits 1.8 m above it, wheels on the deck
-            self._agent.set_pose(physics, np.array([*layout.agent_xy, 0.0]), yaw_quat(layout.agent_yaw))
-            self._agent.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
-        else:
-            # a pedestrian's slide joints live in its attachment frame: keep that frame unrotated (world axes)
-            self._agent.set_pose(physics, np.array([*layout.agent_xy, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
-            physics.bind(list(self._agent.joints)).qpos = 0.0
-            physics.bind(list(self._agent.joints)).qvel = 0.0
-        for prop, xy, yaw in zip(self._statics, layout.static_xy, layout.static_yaw, strict=True):
-            prop.set_pose(physics, np.array([*xy, 0.0]), yaw_quat(yaw))
-        physics.bind(self._target_body).pos = np.array([*layout.target_xy, 0.0])
-
-        # fixed obstacle footprints this episode (statics + the arena's own)
-        self._static_fp = static_footprints(layout, [p.footprint for p in self._statics], self._arena.fixed_obstacles())
-        if self._route_steps > 0:
-            self._route_graph = VisibilityGraph(
-                self._static_fp, self.spec.agent.radius + ROUTE_MARGIN, self._arena.bounds
-            )
+        self._place(physics, layout)
         self._clearance_of = Clearances(
             self._static_fp, layout.mover_xy, self._mover_half, self._mover_radius_fp, spec.agent.radius
         )
@@ -372,6 +378,31 @@ class Navigate(composer.Task):
         self._rescued = 0
         self._update_observation()
         self._update_info(physics)
+
+    def _place(self, physics: mjcf.Physics, layout: Layout) -> None:
+        """Put the agents, the static obstacles and the target markers where ``layout`` says; the episode's
+        static footprints and route graph."""
+        if isinstance(self._agent, Aircraft):
+            # the attachment frame on the surface: the model's own root sits 1.8 m above it, wheels on the deck
+            for agent, xy, yaw in zip(self._agents, layout.agents_xy, layout.agents_yaw, strict=True):
+                agent.set_pose(physics, np.array([*xy, 0.0]), yaw_quat(yaw))
+                agent.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
+        else:
+            # a pedestrian's slide joints live in its attachment frame: keep that frame unrotated (world axes)
+            self._agent.set_pose(physics, np.array([*layout.agent_xy, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+            physics.bind(list(self._agent.joints)).qpos = 0.0
+            physics.bind(list(self._agent.joints)).qvel = 0.0
+        for prop, xy, yaw in zip(self._statics, layout.static_xy, layout.static_yaw, strict=True):
+            prop.set_pose(physics, np.array([*xy, 0.0]), yaw_quat(yaw))
+        for body, xy in zip(self._target_bodies, layout.targets_xy, strict=True):
+            physics.bind(body).pos = np.array([*xy, 0.0])
+
+        # fixed obstacle footprints this episode (statics + the arena's own)
+        self._static_fp = static_footprints(layout, [p.footprint for p in self._statics], self._arena.fixed_obstacles())
+        if self._route_steps > 0:
+            self._route_graph = VisibilityGraph(
+                self._static_fp, self.spec.agent.radius + ROUTE_MARGIN, self._arena.bounds
+            )
 
     # -- one control step ----------------------------------------------------------------------------------
     def before_step(self, physics: mjcf.Physics, action: np.ndarray, random_state: np.random.RandomState) -> None:
@@ -406,7 +437,8 @@ class Navigate(composer.Task):
         spec = self.spec
         st = stepper.read_state()
         self._diverged = stepper.diverged(st["vel"])
-        agent_on_surface, lost = stepper.surface(st["xy"])
+        on_surface, lost = stepper.surface(st["xy"])
+        agent_on_surface = on_surface[0]
         if lost:  # rare: a crash pushed a mover off the surface
             self._rescued += self._mover_driver.rescue(physics, lost, st)
             st = stepper.read_state()
@@ -469,7 +501,7 @@ class Navigate(composer.Task):
         return Footprints(st["xy"][1:], self._mover_half, st["yaw"][1:], self._mover_radius_fp)
 
     def _predict(self, physics: mjcf.Physics) -> Prediction:
-        if not self._movers:
+        if not len(self._kinds):
             return Prediction(np.zeros((0, self._horizon, 2)), np.zeros(0, dtype=bool))
         if type(self._predictor) is ConstantVelocity:
             # the scenes' default predictor, on the hot path: the task's own history is well formed (MuJoCo resets
@@ -568,15 +600,15 @@ class Navigate(composer.Task):
             return action
         return np.clip(world_to_agent(action, float(self._state["yaw"][0])), -1.0, 1.0)
 
-    def route_points(self, agent_xy: np.ndarray) -> np.ndarray:
+    def route_points(self, agent_xy: np.ndarray, target_xy: np.ndarray | None = None) -> np.ndarray:
         """(``route_steps``, 2) world points ``k * agent.reach`` metres (k = 1, 2, ...) along the shortest path
-        from ``agent_xy`` to the target around this episode's static obstacles (scene field
-        ``episode.route_steps``); the target itself beyond the path's end. Where the graph finds no path (the
-        agent boxed in, or inside grown obstacles with no way out), the straight line to the target stands in for
-        it, as in the scripted planner."""
+        from ``agent_xy`` to ``target_xy`` (default: the agent's target) around this episode's static obstacles
+        (scene field ``episode.route_steps``); the target itself beyond the path's end. Where the graph finds no
+        path (the agent boxed in, or inside grown obstacles with no way out), the straight line to the target
+        stands in for it, as in the scripted planner."""
         if self._route_graph is None:
             raise RuntimeError("the scene's episode.route_steps is 0: no route is observed")
-        target = self.layout.target_xy
+        target = self.layout.target_xy if target_xy is None else target_xy
         try:
             path = self._route_graph.shortest_path(agent_xy, target)
         except NoPathError:

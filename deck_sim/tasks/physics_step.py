@@ -51,10 +51,10 @@ class FusedStepper:
     Args:
         physics: the compiled physics.
         arena: the arena (its fixed obstacles' geoms and its surface).
-        agent: the agent's entity.
+        agent: the agent's entity, or every agent's (a list) when several act at once.
         movers: the movers' entities.
         statics: the static obstacles' entities.
-        contact_sensor: the agent's contact sensor (how many contacts its own body has).
+        contact_sensor: the agent's contact sensor (how many contacts its own body has), or one per agent.
         n_substeps: physics steps per control step.
         collision_checks: contact checks per control step.
     """
@@ -63,19 +63,25 @@ class FusedStepper:
         self,
         physics: mjcf.Physics,
         arena: _SiteArena,
-        agent: Aircraft | Pedestrian,
+        agent: Aircraft | Pedestrian | list[Aircraft],
         movers: list[Tractor | Aircraft | Pedestrian],
         statics: list[StaticProp],
-        contact_sensor: mjcf.Element,
+        contact_sensor: mjcf.Element | list[mjcf.Element],
         n_substeps: int,
         collision_checks: int,
     ) -> None:
         m = physics.model
         self._m, self._d = m.ptr, physics.data.ptr
         self._arena = arena
-        vehicles = [agent, *movers]
+        agents = list(agent) if isinstance(agent, list) else [agent]
+        sensors = list(contact_sensor) if isinstance(contact_sensor, list) else [contact_sensor]
+        if len(sensors) != len(agents):
+            raise ValueError(f"one contact sensor per agent: {len(agents)} agents, {len(sensors)} sensors")
+        self.n_agents = k = len(agents)
+        """How many agents lead the state's rows."""
+        vehicles = [*agents, *movers]
         self.body_ids = np.array([physics.bind(v.root_body).element_id for v in vehicles])
-        """Body ids of the agent (first) and every mover."""
+        """Body ids of the agents (first) and every mover."""
         # planar velocity dofs: free joints' linear x, y; pedestrians' slide joints
         vel_dofs = []
         for v in vehicles:
@@ -88,7 +94,7 @@ class FusedStepper:
         self._vel_dofs = np.array(vel_dofs, dtype=int)
         self._is_ped = np.array([isinstance(v, Pedestrian) for v in vehicles])
         self._all_ped = bool(self._is_ped.all())
-        self._mover_ids = self.body_ids[1:]
+        self._mover_ids = self.body_ids[k:]
         # views of MuJoCo's arrays (they live as long as the data and are written in place by every step)
         d = self._d
         self._xpos, self._xmat, self._qpos, self._qvel = d.xpos, d.xmat, d.qpos, d.qvel
@@ -102,11 +108,16 @@ class FusedStepper:
         """m/s: a planar speed above this flags the control step as diverged."""
         self._runaway_sq = self.runaway_speed**2
         self._any_ped = bool(self._is_ped.any())
-        # contact bookkeeping: which geoms are the agent's, which obstacle owns every other geom
+        # contact bookkeeping: which geoms are each agent's, which obstacle owns every other geom (with several
+        # agents, each is an obstacle to the others)
         self.obstacle_names = [p.mjcf_model.model for p in statics]
-        """Names of the obstacles: the static ones (the arena's own last), then the movers."""
+        """Names of the obstacles: the static ones (the arena's own last), then the movers, then (with several
+        agents) the agents."""
         self.obstacle_names += [g.name for g in arena.fixed_obstacle_geoms]
         self.obstacle_names += [mv.mjcf_model.model for mv in movers]
+        if k > 1:
+            self.obstacle_names += [a.mjcf_model.model for a in agents]
+        vehicle_obstacles = movers if k == 1 else [*movers, *agents]
         owner = np.full(m.ngeom, -1, dtype=int)
         k = 0
         for p in statics:
@@ -115,26 +126,34 @@ class FusedStepper:
         for g in arena.fixed_obstacle_geoms:
             owner[physics.bind(g).element_id] = k
             k += 1
-        for mv in movers:
+        for mv in vehicle_obstacles:
             owner[[physics.bind(g).element_id for g in mv.mjcf_model.find_all("geom")]] = k
             k += 1
         self._geom_owner = owner
-        self._agent_geom = np.zeros(m.ngeom, dtype=bool)
-        self._agent_geom[[physics.bind(g).element_id for g in agent.mjcf_model.find_all("geom")]] = True
-        self._contact_adr = int(physics.bind(contact_sensor).adr)
+        self._agent_geoms = []
+        for a in agents:
+            mask = np.zeros(m.ngeom, dtype=bool)
+            mask[[physics.bind(g).element_id for g in a.mjcf_model.find_all("geom")]] = True
+            self._agent_geoms.append(mask)
+        self._contact_adrs = [int(physics.bind(c).adr) for c in sensors]
         self._warning_ids = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
         # the fused substeps (all but composer's last one), split for contact checks
         n_fused = n_substeps - 1
         edges = np.linspace(0, n_fused, collision_checks + 1).round().astype(int)
         self._chunks = [int(c) for c in np.diff(edges) if c > 0]
-        self.collided_with: str | None = None
-        """The first obstacle the agent touched in the current control step, or None."""
+        self.collisions: list[str | None] = [None] * self.n_agents
+        """The first obstacle each agent touched in the current control step, or None."""
         self._warnings_before = 0
         self._diverged = False  # what ``diverged`` found for the current control step
 
+    @property
+    def collided_with(self) -> str | None:
+        """The first obstacle the (first) agent touched in the current control step, or None."""
+        return self.collisions[0]
+
     def read_state(self) -> dict[str, np.ndarray]:
-        """Planar pose and velocity of the agent (row 0) and every mover: ``xy`` (k, 2) metres, ``yaw`` (k,)
-        radians, ``vel`` (k, 2) m/s and ``forward_speed`` (k,) m/s; fresh arrays."""
+        """Planar pose and velocity of the agents (the first ``n_agents`` rows) and every mover: ``xy`` (k, 2)
+        metres, ``yaw`` (k,) radians, ``vel`` (k, 2) m/s and ``forward_speed`` (k,) m/s; fresh arrays."""
         xy = self._xpos[self.body_ids, :2]  # (fancy indexing copies)
         xmat = self._xmat[self.body_ids]
         yaw = np.arctan2(xmat[:, 3], xmat[:, 0])
@@ -150,8 +169,8 @@ class FusedStepper:
         return {"xy": xy, "yaw": yaw, "vel": vel, "forward_speed": fwd}
 
     def start_episode(self) -> None:
-        """Forget the last contact and take MuJoCo's warning counts as they are now."""
-        self.collided_with = None
+        """Forget the last contacts and take MuJoCo's warning counts as they are now."""
+        self.collisions = [None] * self.n_agents
         self._diverged = False
         self._warnings_before = sum(self._warning_number[self._warning_ids].tolist())
 
@@ -159,8 +178,9 @@ class FusedStepper:
         """Run the fused substeps (all but composer's last one), checking contacts after every chunk."""
         m, d = self._m, self._d
         self._warnings_before = sum(self._warning_number[self._warning_ids].tolist())  # compared in ``diverged``
-        self.collided_with = None
+        collisions = self.collisions = [None] * self.n_agents
         self._diverged = False
+        sensordata, adrs = self._sensordata, self._contact_adrs
         # Sensors are read only at the end of a chunk (the contact sensor) and of the control step, and nothing in
         # the dynamics depends on them: skipping them on the steps in between (the accelerometer alone makes MuJoCo
         # run mj_rnePostConstraint every step) leaves the trajectory and every value read bit-identical.
@@ -174,21 +194,26 @@ class FusedStepper:
                 finally:
                     opt.disableflags = flags
             mujoco.mj_step(m, d, nstep=1)
-            if self.collided_with is None and self._sensordata[self._contact_adr] != 0.0:
-                self.check_contacts()
+            for c_i, adr in zip(collisions, adrs):  # noqa: B905 - one per agent by construction
+                if c_i is None and sensordata[adr] != 0.0:
+                    self.check_contacts()
+                    break
 
     def check_contacts(self) -> None:
-        """Record the first obstacle the agent touches (contacts between bodies only; wheels touch the deck)."""
-        d = self._d
-        if self.collided_with is not None or self._sensordata[self._contact_adr] == 0.0:
-            return
-        geom = d.contact.geom[: d.ncon]
-        a0, a1 = self._agent_geom[geom[:, 0]], self._agent_geom[geom[:, 1]]
-        other = np.where(a0, geom[:, 1], geom[:, 0])[a0 ^ a1]
-        owners = self._geom_owner[other]
-        owners = owners[owners >= 0]
-        if len(owners):
-            self.collided_with = self.obstacle_names[int(owners[0])]
+        """Record the first obstacle each agent touches (contacts between bodies only; wheels touch the deck)."""
+        d, geom = self._d, None
+        for i, adr in enumerate(self._contact_adrs):
+            if self.collisions[i] is not None or self._sensordata[adr] == 0.0:
+                continue
+            if geom is None:
+                geom = d.contact.geom[: d.ncon]
+            mine = self._agent_geoms[i]
+            a0, a1 = mine[geom[:, 0]], mine[geom[:, 1]]
+            other = np.where(a0, geom[:, 1], geom[:, 0])[a0 ^ a1]
+            owners = self._geom_owner[other]
+            owners = owners[owners >= 0]
+            if len(owners):
+                self.collisions[i] = self.obstacle_names[int(owners[0])]
 
     def diverged(self, vel: np.ndarray) -> bool:
         """Whether the physics diverged over the control step, composer's substep included: MuJoCo warned (and
@@ -203,19 +228,20 @@ class FusedStepper:
         self._diverged = warnings > self._warnings_before or not finite or not speed_sq <= self._runaway_sq
         return self._diverged
 
-    def surface(self, xy: np.ndarray) -> tuple[bool, list[int]]:
-        """Whether the agent is on the surface, and the indices of the movers that are lost: off the surface or
-        fallen below it. ``xy`` (1 + n, 2) is ``read_state()["xy"]``.
+    def surface(self, xy: np.ndarray) -> tuple[list[bool], list[int]]:
+        """Whether each agent is on the surface, and the indices of the movers that are lost: off the surface or
+        fallen below it. ``xy`` (k + n, 2) is ``read_state()["xy"]``.
 
         After a control step that ``diverged`` found diverged, no mover counts as lost: the state is MuJoCo's reset
         (every body back at the origin, piled on each other) or a blown-up one, the episode ends, and there is
         nothing to rescue (``MoverDriver.rescue`` would log every mover as pushed off the surface)."""
-        on_surface = self._arena.on_surface(xy).tolist()  # the agent, then every mover
+        on_surface = self._arena.on_surface(xy).tolist()  # the agents, then every mover
+        k = self.n_agents
         if self._diverged:
-            return on_surface[0], []
+            return on_surface[:k], []
         z = self._xpos[self._mover_ids, 2].tolist()
-        lost = [i for i, (on, zi) in enumerate(zip(on_surface[1:], z, strict=True)) if not on or zi < -1.0]
-        return on_surface[0], lost
+        lost = [i for i, (on, zi) in enumerate(zip(on_surface[k:], z, strict=True)) if not on or zi < -1.0]
+        return on_surface[:k], lost
 
 
 class Clearances:
