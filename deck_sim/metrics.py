@@ -213,3 +213,54 @@ def summarize(results: Sequence[EpisodeResult]) -> dict[str, float]:
     out["time_to_goal"] = float(np.mean([r.sim_time for r in ok])) if ok else float("nan")
     out["min_clearance"] = float(np.min([r.min_clearance for r in results]))
     return out
+
+
+@dataclass(frozen=True)
+class TeamEpisodeResult:
+    """What one episode of several aircraft came to (``deck_sim.tasks.multi``). Lengths in metres, times in
+    seconds.
+
+    ``aircraft`` holds one ``EpisodeResult`` per aircraft: its own outcome, its path up to the step it was done
+    (``sim_time`` is then), its reward; ``collision_partner`` names what it hit, another aircraft included."""
+
+    scene: str
+    episode: int
+    aircraft: tuple[EpisodeResult, ...]
+    shortest: tuple[float, ...]
+    """Per aircraft, the length of the shortest way from its start to its target's disc around the static
+    obstacles (``shortest_path`` for its narrowest half-width, less the goal radius): the lower bound of its path."""
+    makespan: float
+    """Seconds until the last aircraft arrived; NaN unless every one did."""
+    aircraft_collisions: int
+    """Collisions between two aircraft (each pair counted once)."""
+
+    @property
+    def all_reached(self) -> bool:
+        """Whether every aircraft reached its target."""
+        return all(r.outcome == "goal" for r in self.aircraft)
+
+    def as_dict(self) -> dict:
+        """Plain dict (JSON friendly)."""
+        return asdict(self)
+
+
+def summarize_team(results: Sequence[TeamEpisodeResult]) -> dict[str, float]:
+    """Per-aircraft outcome rates (over every aircraft of every episode), the share of episodes in which every
+    aircraft arrived, their mean makespan, aircraft-aircraft collisions per episode, and the sum of the paths
+    against the sum of the shortest ways (episodes in which every aircraft arrived)."""
+    if not results:
+        raise ValueError("no episodes to summarize")
+    aircraft = [r for team in results for r in team.aircraft]
+    out: dict[str, float] = {"episodes": float(len(results)), "aircraft": float(len(aircraft))}
+    for o in OUTCOMES:
+        out[f"{o}_rate"] = sum(r.outcome == o for r in aircraft) / len(aircraft)
+    full = [team for team in results if team.all_reached]
+    out["all_reached_rate"] = len(full) / len(results)
+    out["makespan"] = float(np.mean([team.makespan for team in full])) if full else float("nan")
+    out["aircraft_collisions_per_episode"] = float(np.mean([team.aircraft_collisions for team in results]))
+    paths = [sum(r.path_length for r in team.aircraft) for team in full]
+    bounds = [sum(team.shortest) for team in full]
+    out["path_sum_ratio"] = float(np.sum(paths) / np.sum(bounds)) if full and np.sum(bounds) > 0 else float("nan")
+    out["mean_reward"] = float(np.mean([r.reward for r in aircraft]))
+    return out
+

@@ -22,8 +22,16 @@ from dm_control import composer
 
 import deck_sim
 from deck_sim.geometry import Footprints
-from deck_sim.metrics import EpisodeResult, outcome_of, path_length, turning_angle
+from deck_sim.metrics import (
+    EpisodeResult,
+    TeamEpisodeResult,
+    outcome_of,
+    path_length,
+    shortest_path,
+    turning_angle,
+)
 from deck_sim.policies import Policy
+from deck_sim.policies.team import TeamPolicy
 from deck_sim.recording import DEFAULT_CHUNK_SIZE, Attachment, EpisodeRecorder
 from deck_sim.scenes import dump_scene
 from deck_sim.types import SceneFrame, StepFrame
@@ -185,6 +193,85 @@ def run_episode(
         min_clearance=float(min_clear),
         collision_partner=info["collision"],
         predictor_fallbacks=int(fallbacks),
+    )
+
+
+def run_team_episode(
+    env: composer.Environment,
+    policy: TeamPolicy,
+    episode: int = 0,
+    on_step: StepCallback | None = None,
+) -> TeamEpisodeResult:
+    """Play one episode of a multi-aircraft scene from ``env.reset()`` to its end and measure every aircraft.
+
+    Each aircraft's path runs from its start to where it was done (``done_position``) or, for one still taxiing
+    at the time limit, to where it stands then; its reward is the sum of its rewards.
+
+    Args:
+        on_step: called after the reset and after every step with (env, timestep, actions or None).
+    """
+    ts = env.reset()
+    policy.reset()
+    task = env.task
+    k = task.n_agents
+    agents = task.last_info["agents"]
+    tracks = [[a["position"].copy()] for a in agents]
+    min_clear = [a["min_clearance"] for a in agents]
+    total = np.zeros(k)
+    fallbacks, steps = 0, 0
+    if on_step is not None:
+        on_step(env, ts, None)
+    while not ts.last():
+        live = [not a["done"] for a in task.last_info["agents"]]
+        actions = np.asarray(policy.act(ts.observation), dtype=np.float64)
+        ts = env.step(actions)
+        steps += 1
+        info = task.last_info
+        total += np.asarray(ts.reward, dtype=np.float64)
+        fallbacks += info["predictor_fallbacks"]
+        for i, a in enumerate(info["agents"]):
+            if live[i]:
+                tracks[i].append((a["done_position"] if a["done"] else a["position"]).copy())
+                min_clear[i] = min(min_clear[i], a["min_clearance"])
+        if on_step is not None:
+            on_step(env, ts, actions)
+    info = task.last_info
+    _, half, rounding = task.agent.footprint
+    body_width = float(np.min(half) + rounding)
+    statics = task.planner_view(0).statics
+    results, shortest = [], []
+    for i, a in enumerate(info["agents"]):
+        xy = np.array(tracks[i])
+        start, target = xy[0], task.layout.targets_xy[i]
+        shortest.append(
+            max(shortest_path(statics, body_width, task.arena.bounds, start, target) - task.spec.agent.goal_radius, 0.0)
+        )
+        results.append(
+            EpisodeResult(
+                scene=task.spec.name,
+                episode=episode,
+                outcome=outcome_of({**a, "diverged": info["diverged"]}, truncated=not a["done"]),
+                steps=len(xy) - 1,
+                sim_time=float(a["done_time"] if a["done_time"] is not None else info["time"]),
+                reward=float(total[i]),
+                path_length=path_length(xy),
+                start_target_distance=float(np.linalg.norm(target - start)),
+                turning_angle_deg=float(np.degrees(turning_angle(xy))),
+                min_clearance=float(min_clear[i]),
+                collision_partner=a["collision"],
+                predictor_fallbacks=int(fallbacks),
+            )
+        )
+    names = set(task.agent_names)
+    pairs = {frozenset((a["name"], a["collision"])) for a in info["agents"] if a["collision"] in names}
+    reached = [r.sim_time for r in results if r.outcome == "goal"]
+    return TeamEpisodeResult(
+        scene=task.spec.name,
+        episode=episode,
+        aircraft=tuple(results),
+        shortest=tuple(shortest),
+        makespan=float(max(reached)) if len(reached) == k else float("nan"),
+        aircraft_collisions=len(pairs),
     )
 
 

@@ -51,6 +51,12 @@ class DeckSimEnv(gymnasium.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self._env = load(scene, seed=None, **overrides)
+        if self._env.task.spec.multi_agent:
+            self._env.close()
+            raise ValueError(
+                f"scene {scene!r} puts several aircraft on the deck: use its PettingZoo environment, "
+                "deck_sim.multiagent.parallel_env"
+            )
         self.render_mode = render_mode
         self._size = (height, width)
         self._camera = camera

@@ -9,8 +9,12 @@ import pytest
 
 import deck_sim
 from deck_sim.control.planners import ScriptedPlanner
+from deck_sim.metrics import summarize_team
+from deck_sim.policies import PrioritisedPolicy
+from deck_sim.rollout import run_team_episode
 from deck_sim.scenes import SceneSpecError, load_scene
 from deck_sim.tasks.actions import InvalidActionError
+from deck_sim.tasks.multi import HANGAR_SPACING, HANGAR_X
 
 pettingzoo = pytest.importorskip("pettingzoo")
 from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
@@ -104,26 +108,7 @@ def test_bad_actions_are_named_and_nothing_moves(env):
         np.testing.assert_array_equal(a["position"], xy)
 
 
-def test_two_aircraft_that_meet_both_collide_and_name_each_other():
-    env = deck_sim.load("deck1-multi", seed=5, agents__count=2, movers__tractors=0, movers__aircraft=0)
-    ts = env.reset()
-    task = env.task
-    for _ in range(200):
-        a0, a1 = (info["position"] for info in task.last_info["agents"])
-        toward = (a0 - a1) / max(np.linalg.norm(a0 - a1), 1e-9)
-        ts = env.step([np.zeros(2), task.action_from_world(toward, 1)])  # aircraft_0 waits, aircraft_1 drives at it
-        if ts.last():
-            break
-    agents = task.last_info["agents"]
-    assert agents[0]["collision"] == "aircraft_1" and agents[1]["collision"] == "aircraft_0"
-    assert agents[0]["done"] and agents[1]["done"] and not task.last_info["all_reached"]
-    spec = task.spec
-    assert np.all(ts.reward <= spec.reward.collision + 2 * spec.reward.attraction_max + 2 * spec.reward.repulsion_max)
-    np.testing.assert_array_equal(ts.discount, [0.0, 0.0])
-    env.close()
-
-
-def test_an_aircraft_that_is_done_stands_braked_with_no_reward():
+def test_an_aircraft_that_is_done_leaves_the_deck_for_its_stand_with_no_reward():
     env = deck_sim.load("deck1-multi", seed=7, agents__count=2, movers__tractors=0, movers__aircraft=0)
     env.reset()
     task = env.task
@@ -136,14 +121,63 @@ def test_an_aircraft_that_is_done_stands_braked_with_no_reward():
             break
     info = task.last_info["agents"][1]
     assert info["reached_goal"] and info["collision"] is None and ts.reward[1] > 100.0
-    parked = info["position"].copy()
-    for _ in range(12):
+    assert np.linalg.norm(info["done_position"] - info["target"]) <= task.spec.agent.goal_radius
+    stand = np.array([HANGAR_X - HANGAR_SPACING, 0.0])
+    for _ in range(6):
         ts = env.step([np.zeros(2), np.array([1.0, 1.0])])  # its action is ignored
         assert ts.reward[1] == 0.0 and ts.discount[1] == 0.0 and ts.discount[0] == 1.0 and not ts.last()
-    # it brakes to a stop from its arrival speed and stays
-    assert np.linalg.norm(task.last_info["agents"][1]["position"] - parked) < 6.0
+        assert np.linalg.norm(task.last_info["agents"][1]["position"] - stand) < 0.5  # at rest on its stand
     assert abs(task.last_info["agents"][1]["speed"]) < 0.05
-    assert task.last_info["agents"][1]["done_time"] < task.last_info["time"]
+    # aircraft_0 still sees it, far behind the stern, as its last dynamic obstacle
+    obs = task.observation_of(0)
+    me = task.last_info["agents"][0]["position"]
+    np.testing.assert_allclose(me + obs["dynamic_obstacles"][-1], task.last_info["agents"][1]["position"], atol=1e-9)
+    env.close()
+
+
+def test_prioritised_planning_brings_four_aircraft_to_their_targets():
+    env = deck_sim.load("deck1-multi", seed=None)
+    env.random_state.seed(100000)
+    result = run_team_episode(env, PrioritisedPolicy(env))
+    assert result.all_reached and result.aircraft_collisions == 0
+    assert [r.outcome for r in result.aircraft] == ["goal"] * 4
+    assert result.makespan == max(r.sim_time for r in result.aircraft) <= env.task.spec.episode.time_limit
+    for r, shortest in zip(result.aircraft, result.shortest, strict=True):
+        assert shortest <= r.path_length <= 1.5 * shortest + 10.0
+    summary = summarize_team([result])
+    assert summary["goal_rate"] == summary["all_reached_rate"] == 1.0
+    assert summary["path_sum_ratio"] >= 1.0
+    env.close()
+
+
+class _RamIntoAircraft0:
+    """aircraft_0 waits, aircraft_1 drives straight at it."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, observation):
+        a0, a1 = (info["position"] for info in self.env.task.last_info["agents"])
+        toward = (a0 - a1) / max(np.linalg.norm(a0 - a1), 1e-9)
+        return np.stack([np.zeros(2), self.env.task.action_from_world(toward, 1)])
+
+
+def test_two_aircraft_that_meet_both_collide_name_each_other_and_count_once():
+    env = deck_sim.load("deck1-multi", seed=5, agents__count=2, movers__tractors=0, movers__aircraft=0)
+    last = []
+    result = run_team_episode(env, _RamIntoAircraft0(env), on_step=lambda env, ts, actions: last.append(ts))
+    spec = env.task.spec
+    assert np.all(last[-1].reward <= spec.reward.collision + spec.reward.attraction_max + spec.reward.repulsion_max)
+    np.testing.assert_array_equal(last[-1].discount, [0.0, 0.0])
+    assert [r.outcome for r in result.aircraft] == ["collision", "collision"]
+    assert [r.collision_partner for r in result.aircraft] == ["aircraft_1", "aircraft_0"]
+    assert result.aircraft_collisions == 1 and math.isnan(result.makespan) and not result.all_reached
+    summary = summarize_team([result])
+    assert summary["collision_rate"] == 1.0 and summary["aircraft_collisions_per_episode"] == 1.0
+    assert math.isnan(summary["path_sum_ratio"]) and summary["all_reached_rate"] == 0.0
     env.close()
 
 
@@ -170,3 +204,67 @@ def test_the_parallel_env_names_what_is_wrong_with_an_action_dict():
     env.close()
     with pytest.raises(ValueError, match="has one agent"):
         parallel_env(scene="deck1")
+
+
+def test_the_readme_example_runs_an_episode_to_its_end():
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    blocks = [b for b in re.findall(r"```python\n(.*?)```", readme, flags=re.S) if "parallel_env" in b]
+    assert len(blocks) == 1
+    scope: dict = {}
+    exec(compile(blocks[0], "README.md", "exec"), scope)  # noqa: S102 - the README's own example
+    env = scope["env"]
+    assert env.agents == [] and set(scope["terminations"]) | set(scope["truncations"])
+    env.close()
+
+
+def test_a_shipped_single_agent_actor_acts_for_every_aircraft_on_its_nearest_movers():
+    from deck_sim.policies import SharedPolicy, make_policy, nearest_dynamic, policy_overrides
+
+    overrides = policy_overrides("mddpg", "deck1")
+    single = deck_sim.load("deck1", seed=0, **overrides)
+    actor = make_policy("mddpg", single)
+    single.close()
+    env = deck_sim.load("deck1-multi", seed=2, **overrides)
+    team = SharedPolicy(actor, env)
+    assert team.dynamic == 5  # trained on deck 1's 5 movers; each aircraft sees 5 + 3
+    ts = env.reset()
+    actions = team.act(ts.observation)
+    assert actions.shape == (4, 2) and np.all(np.abs(actions) <= 1.0)
+    own = {k.split(":", 1)[1]: v for k, v in ts.observation.items() if k.startswith("aircraft_2:")}
+    np.testing.assert_array_equal(actions[2], actor.act(nearest_dynamic(own, 5)))
+    cut = nearest_dynamic(own, 5)
+    assert cut["dynamic_obstacles"].shape == (5, 2) and cut["predicted"].shape[0] == 5
+    np.testing.assert_array_equal(cut["dynamic_obstacles"], own["dynamic_obstacles"][:5])
+    np.testing.assert_array_equal(cut["static_obstacles"], own["static_obstacles"])
+    env.close()
+    with pytest.raises(ValueError, match="has one agent"):
+        SharedPolicy(actor, deck_sim.load("deck1", seed=0))
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "--scene", "deck1-multi", "--policy", "zero", "--episodes", "1", "--no-record"],
+        ["run", "--scene", "deck1", "--scene-set", "agents.count=2", "--policy", "zero", "--no-record"],
+        ["eval", "--agents", "zero", "--scenes", "deck1,deck2-multi", "--episodes", "1"],
+        ["render", "--scene", "deck2-multi", "--policy", "zero", "--out", "never.mp4"],
+    ],
+)
+def test_the_one_aircraft_commands_refuse_a_multi_aircraft_scene_by_name(argv, capsys, tmp_path, monkeypatch):
+    from deck_sim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "aircraft" in err and ("multi" in err or "several" in err)
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_the_gymnasium_environment_points_a_multi_aircraft_scene_to_pettingzoo():
+    from deck_sim.wrappers import DeckSimEnv
+
+    with pytest.raises(ValueError, match="deck_sim.multiagent.parallel_env"):
+        DeckSimEnv(scene="deck1-multi")

@@ -84,3 +84,18 @@ def policy_label(policy: str) -> str:
 def fmt(x: Any, spec: str) -> str:
     """``x`` formatted with ``spec``, or ``-`` for NaN (no value)."""
     return "-" if x != x else format(x, spec)
+
+
+def refuse_multi_agent(command: str, scene: str, **overrides: object) -> None:
+    """``ValueError`` if ``scene`` (with ``overrides``) puts several aircraft on the deck: ``deck-sim <command>``
+    acts for one aircraft."""
+    from deck_sim.scenes import load_scene
+
+    spec = load_scene(scene, **overrides)
+    if spec.multi_agent:
+        raise ValueError(
+            f"scene {spec.name!r} has {spec.agents.count} aircraft; deck-sim {command} acts for one. Run a "
+            "multi-aircraft scene from Python (deck_sim.multiagent.parallel_env, deck_sim.policies.SharedPolicy) or "
+            "with benchmarks/multiagent.py"
+        )
+

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deck_sim.cli._common import add_command
+from deck_sim.cli._common import add_command, refuse_multi_agent
 
 CAMERA = "agent/chase"
 """The camera the video is filmed from."""
@@ -38,6 +38,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         check_count(flag, value, MIN_FRAME)
     check_count("--steps", args.steps)
     check_speedup("--speedup", args.speedup)
+    refuse_multi_agent("render", args.scene)
     env = deck_sim.load(args.scene, seed=args.seed, **policy_overrides(args.policy, Path(args.scene).stem))
     h = args.top_height
     w = int(round(h * env.task.top_view_aspect / 8)) * 8

@@ -13,7 +13,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from deck_sim.cli._common import add_command, policy_label, scene_overrides
+from deck_sim.cli._common import add_command, policy_label, refuse_multi_agent, scene_overrides
 from deck_sim.progress import progress
 
 if TYPE_CHECKING:
@@ -21,18 +21,19 @@ if TYPE_CHECKING:
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
-    """Print one line per scene: arena, obstacle counts, default predictor, time limit, description."""
+    """Print one line per scene: arena, agents, obstacle counts, default predictor, time limit, description."""
     del args
     from deck_sim.scenes import load_scene, scene_names
 
     print(
-        f"{'scene':8s} {'arena':7s} {'static':>6s} {'dynamic':>7s} {'predictor':>18s} {'limit s':>7s}  description"
+        f"{'scene':12s} {'arena':7s} {'agents':>6s} {'static':>6s} {'dynamic':>7s} {'predictor':>18s} {'limit s':>7s}"
+        "  description"
     )
     for name in scene_names():
         s = load_scene(name)
         print(
-            f"{name:8s} {s.arena:7s} {s.static.count:6d} {s.movers.count:7d} {s.episode.predictor:>18s} "
-            f"{s.episode.time_limit:7.0f}  {s.description}"
+            f"{name:12s} {s.arena:7s} {s.agents.count:6d} {s.static.count:6d} {s.movers.count:7d} "
+            f"{s.episode.predictor:>18s} {s.episode.time_limit:7.0f}  {s.description}"
         )
     return 0
 
@@ -90,6 +91,7 @@ def _play(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
+    refuse_multi_agent("run", args.scene, **scene_overrides(args.scene_set))
     overrides = policy_overrides(args.policy, Path(args.scene).stem)
     if args.predictor:
         overrides["episode__predictor"] = args.predictor

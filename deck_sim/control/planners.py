@@ -12,10 +12,14 @@ obstacles (visibility graph, for a disc of the agent's radius plus a margin), fo
 picks each step the fastest speed whose rollout along that path stays clear of every mover's predicted path
 (the true future when the task runs the ``oracle`` predictor). It yields by slowing or stopping, never by
 leaving its path. Numpy only (with ``deck_sim.geometry``); tested without MuJoCo.
+
+``PrioritisedPlanner`` is the same for several agents at once (the multi-aircraft scenes): the agents plan in
+turn, each treating the plans of those before it as their future.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -58,6 +62,9 @@ class ScriptedPlanner:
     def reset(self) -> None:
         """Forget the previous episode's obstacles."""
         self._graph: VisibilityGraph | None = None
+        self.planned = np.zeros((0, 2))
+        """(N, 2) where the last ``act`` means the agent to be over the next N periods (metres, world): the points
+        along its path at the speed it chose, or (``body``, an aircraft) its kinematic rollout towards them."""
         self._graph_key: tuple | None = None
 
     def _parked(self, view: PlannerView) -> np.ndarray:
@@ -102,7 +109,9 @@ class ScriptedPlanner:
             return np.stack([view.agent_xy, view.target_xy])
 
     def act(self, view: PlannerView) -> np.ndarray:
-        """Action (2,) in [-1, 1]^2: the displacement to ask for over the next period, as a fraction of reach."""
+        """Action (2,) in [-1, 1]^2: the displacement to ask for over the next period, as a fraction of reach.
+
+        Sets ``planned``: where the agent means to be over the movers' horizon."""
         path = self.path(view)
         scale = view.reach / 3.0
         carrot = _point_along(path, self.lookahead * max(scale, 0.25))
@@ -110,6 +119,11 @@ class ScriptedPlanner:
         dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
         direction = to_carrot / max(float(np.linalg.norm(to_carrot)), 1e-9)
         fraction, _ = self._safe_speed(view, path)
+        self.planned = self._along(view, path, fraction, max(view.mover_future.shape[1], 1))
+        if self.body and view.agent_limits is not None:  # where its kinematics take it along those points
+            self.planned, _ = rollout_displacements(
+                view.agent_xy, view.agent_yaw, view.agent_speed, self.planned, view.period, view.agent_limits
+            )
         # do not overshoot the goal
         step = min(fraction * view.reach, max(dist_goal - 0.5 * view.goal_radius, 0.0))
         return np.clip(direction * step / view.reach, -1.0, 1.0)
@@ -167,19 +181,80 @@ class ScriptedPlanner:
         if future.shape[0] == 0 or future.shape[1] == 0:
             return self.speeds[0], np.inf
         n_steps = future.shape[1]
-        seg = np.diff(path, axis=0)
-        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
-        stop = max(cum[-1] - 0.5 * view.goal_radius, 0.0)  # as ``act``: halfway into the goal disc is enough
         best, best_clear = self.speeds[-1], -np.inf
         for frac in self.speeds:
-            s = np.minimum(frac * view.reach * np.arange(1, n_steps + 1), stop)
-            ahead = np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
+            ahead = self._along(view, path, frac, n_steps)
             clear = self._clearance(view, ahead)
             if clear > 0:
                 return frac, clear
             if clear > best_clear:
                 best, best_clear = frac, clear
         return best, best_clear
+
+
+    @staticmethod
+    def _along(view: PlannerView, path: np.ndarray, fraction: float, n_steps: int) -> np.ndarray:
+        """(n_steps, 2) the points reached along ``path`` at ``fraction`` of the reach per period, stopping
+        halfway into the goal disc (as ``act`` does)."""
+        seg = np.diff(path, axis=0)
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+        stop = max(cum[-1] - 0.5 * view.goal_radius, 0.0)
+        s = np.minimum(fraction * view.reach * np.arange(1, n_steps + 1), stop)
+        return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=1)
+
+
+class PrioritisedPlanner:
+    """Prioritised planning for several agents (Erdmann and Lozano-Perez, 1987): every step the agents plan one
+    after the other, each with its own ``ScriptedPlanner`` (whole body, ``body=True``), and each treats the plans
+    of the agents before it as the future of those agents: where they mean to be over the horizon
+    (``ScriptedPlanner.planned``), instead of the task's forecast of them. The agents after it, which have not
+    planned yet, keep the task's forecast, as every mover does.
+
+    The order is the agents' distance to their targets, nearest first (an aircraft about to park goes before one
+    that has far to go), the index breaking ties; an agent that is done (None in ``act``'s ``views``) stands and
+    is planned around like any parked vehicle.
+
+    Args:
+        n_agents: how many agents plan.
+        **scripted: ``ScriptedPlanner``'s arguments for every agent's planner (``body`` defaults to True).
+    """
+
+    def __init__(self, n_agents: int, **scripted: float | bool | tuple[float, ...]) -> None:
+        scripted.setdefault("body", True)
+        self._planners = [ScriptedPlanner(**scripted) for _ in range(n_agents)]  # type: ignore[arg-type]
+
+    def reset(self) -> None:
+        """Forget the previous episode."""
+        for planner in self._planners:
+            planner.reset()
+
+    def act(self, views: list[PlannerView | None], agent_rows: np.ndarray) -> list[np.ndarray | None]:
+        """Every active agent's action (2,) in [-1, 1]^2 (world frame), None for an agent that is done.
+
+        Args:
+            views: agent i's full-knowledge view, its moving obstacles holding the other agents; None once it is
+                done.
+            agent_rows: (k, k) ``agent_rows[i, j]``: the row of agent j among the moving obstacles of agent i's
+                view (-1 on the diagonal).
+        """
+        k = len(self._planners)
+        if len(views) != k or np.shape(agent_rows) != (k, k):
+            raise ValueError(f"{k} planners need {k} views and agent rows ({k}, {k}), got {len(views)} and "
+                             f"{np.shape(agent_rows)}")
+        active = [i for i in range(k) if views[i] is not None]
+        order = active
+        plans: dict[int, np.ndarray] = {}
+        actions: list[np.ndarray | None] = [None] * k
+        for i in order:
+            view = views[i]
+            if plans:
+                future = view.mover_future.copy()
+                for j, plan in plans.items():
+                    future[agent_rows[i, j]] = plan[: future.shape[1]]
+                view = dataclasses.replace(view, mover_future=future)
+            actions[i] = self._planners[i].act(view)
+            plans[i] = self._planners[i].planned
+        return actions
 
 
 def _point_along(path: np.ndarray, distance: float) -> np.ndarray:

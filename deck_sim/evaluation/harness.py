@@ -87,7 +87,12 @@ class EvalConfig:
         labels = [agent_label(a) for a in self.agents]
         if len(set(labels)) != len(labels):
             raise EvalError(f"agent names repeat: {labels}")
-        names = [load_scene(s).name for s in self.scenes]
+        specs = [load_scene(s) for s in self.scenes]
+        multi = [s.name for s in specs if s.multi_agent]
+        if multi:
+            raise EvalError(f"scenes {multi} put several aircraft on the deck; the evaluation acts for one (run them "
+                            "with benchmarks/multiagent.py)")
+        names = [s.name for s in specs]
         if len(set(names)) != len(names):
             raise EvalError(f"scenes repeat (by their spec names): {names}")
         if self.episodes < 1:

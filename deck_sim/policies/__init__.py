@@ -7,7 +7,8 @@ the same view (the evaluation runs them with the MPC predictor); ``random`` and 
 (``reference``). ``LearnedPolicy`` runs an actor exported by ``training`` (``deck-sim train``) from a weights-only
 ``.npz`` file with numpy alone, ``EnsemblePolicy`` several such actors by the mean of their actions (``actors``);
 ``mddpg``, ``ddpg``, ``dqn`` and ``a2c`` name the policies shipped in ``deck_sim/trained/`` for the environment's
-scene (``registry``; the names are ``deck_sim.agents``'s).
+scene (``registry``; the names are ``deck_sim.agents``'s). ``PrioritisedPolicy`` acts for every aircraft of a
+multi-aircraft scene at once, ``SharedPolicy`` runs a single-agent policy for each (``team``).
 """
 
 from deck_sim.policies.actors import (
@@ -39,6 +40,7 @@ from deck_sim.policies.registry import (
     shipped_log_dir,
     shipped_policy_path,
 )
+from deck_sim.policies.team import PrioritisedPolicy, SharedPolicy, TeamPolicy, nearest_dynamic
 
 __all__ = [
     "ACTIVATIONS",
@@ -58,12 +60,16 @@ __all__ = [
     "LearnedPolicy",
     "Policy",
     "PolicyFileError",
+    "PrioritisedPolicy",
     "RandomPolicy",
     "ScriptedPolicy",
+    "SharedPolicy",
     "TEACHER_VIEWS",
+    "TeamPolicy",
     "ZeroPolicy",
     "load_actor",
     "make_policy",
+    "nearest_dynamic",
     "obstacle_sets",
     "policy_file",
     "policy_overrides",

@@ -11,11 +11,18 @@ array (k, 2)); observations are namespaced ``aircraft_i:<key>`` with the single-
 aircraft entities' own observables, disabled, are named ``aircraft_i/position`` and so on); the reward and the
 discount are arrays (k,).
 
-An aircraft that reaches its target, collides or leaves the surface is done: it brakes to a stop and stands for the
-rest of the episode, parked. Its body stays, an obstacle that the others can hit like any parked aircraft, and it stays
-among their dynamic obstacles (predicted to stand). From the step after, its reward and discount are 0 and its
-actions are ignored. The episode ends when every aircraft is done, at the time limit, or when the physics
-diverges. A collision between two aircraft is a collision for both: each one's contact names the other.
+An aircraft that reaches its target, collides or leaves the surface is done, and leaves the deck at once: a
+catapult launches it, the launch crew takes it over at its queue spot, a tractor tows a damaged one away. The task
+puts it at rest on its own stand of an off-deck apron (``HANGAR_X``: a strip of ground beyond the stern, out of the
+movers' routes and every camera's view of the deck), braked. It stays in the other aircraft's observations as a
+dynamic obstacle far behind the stern (the observation's rows are fixed; sorted nearest first, it comes last), its
+reward and discount are 0 from then on, and its actions are ignored. The episode ends when every aircraft is done,
+at the time limit, or when the physics diverges. A collision between two aircraft is a collision for both: each
+one's contact names the other.
+
+Why it leaves rather than parks where it stopped: the movers plan their routes round the static obstacles once per
+episode, and an aircraft standing at a catapult or a queue spot would stand in their routes for the rest of the
+episode, holding them (they yield to aircraft) and, through them, the aircraft still taxiing.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import mujoco
 import numpy as np
 from dm_control import mjcf
 from dm_control.composer.observation import observable
@@ -43,6 +51,12 @@ __all__ = ["MultiNavigate", "checked_actions"]
 
 _BRAKED = (0.0, 0.0, 1.0, 1.0)
 """An aircraft's controls while it stands: no steer, no thrust, full brakes."""
+
+HANGAR_X = -60.0
+"""Metres: x of the first stand of the off-deck apron where aircraft that are done wait (the deck's stern is at
+x = 0); aircraft i stands at (``HANGAR_X`` - ``HANGAR_SPACING`` * i, 0), heading along x."""
+HANGAR_SPACING = 40.0
+"""Metres between two stands of the apron (more than an aircraft's length and span)."""
 
 
 def checked_actions(actions: Any, names: list[str], active: list[bool]) -> list[tuple[float, float] | None]:
@@ -107,6 +121,22 @@ class MultiNavigate(Navigate):
         """Per aircraft, the state rows it sees: itself, then its dynamic obstacles (movers, other aircraft)."""
         self._pred_rows = [np.r_[0:n, [n + j for j in others[i]]].astype(int) for i in range(k)]
         """Per aircraft, the prediction's rows of its dynamic obstacles."""
+        # the apron the aircraft that are done wait on: ground for their wheels only (as the deck's surface)
+        length = HANGAR_SPACING * k
+        self._arena.mjcf_model.worldbody.add(
+            "geom",
+            name="apron",
+            type="box",
+            pos=[HANGAR_X + HANGAR_SPACING / 2 - length / 2, 0.0, -0.5],
+            size=[length / 2, HANGAR_SPACING / 2, 0.5],
+            contype=1,
+            conaffinity=1,
+            condim=3,
+            friction=[1.0, 0.005, 0.0001],
+            group=3,
+            rgba=[0.28, 0.29, 0.31, 1.0],
+        )
+        self._stands = np.array([[HANGAR_X - HANGAR_SPACING * i, 0.0] for i in range(k)])
 
     # -- composer plumbing ---------------------------------------------------------------------------------
     @property
@@ -191,7 +221,8 @@ class MultiNavigate(Navigate):
 
     @staticmethod
     def _outcome() -> dict[str, Any]:
-        return {"reached_goal": False, "collision": None, "left_surface": False, "done_time": None}
+        return {"reached_goal": False, "collision": None, "left_surface": False, "done_time": None,
+                "done_position": None}
 
     # -- one control step ----------------------------------------------------------------------------------
     def before_step(self, physics: mjcf.Physics, action: Any, random_state: np.random.RandomState) -> None:
@@ -233,6 +264,7 @@ class MultiNavigate(Navigate):
         self._prediction = self._predict(physics)
         r = spec.reward
         weights = (r.w_attraction, r.w_repulsion, r.w_collision, r.w_goal)
+        finished: list[int] = []
         for i in range(k):
             if self._done[i] or self._diverged:
                 self._rewards[i] = rewards.RewardTerms(0.0, 0.0, 0.0, 0.0, 0.0)
@@ -257,10 +289,26 @@ class MultiNavigate(Navigate):
                     "collision": collided_with,
                     "left_surface": bool(off),
                     "done_time": float(self._d.time),
+                    "done_position": st["xy"][i].copy(),
                 }
+                finished.append(i)
+        if finished and not self._diverged:
+            self._leave_deck(physics, finished)
+            st = self._state = stepper.read_state()
+            self._history[:, -1] = st["xy"][self._dyn_rows]
         self._terminal = all(self._done) or self._diverged
         self._update_observation()
         self._update_info(physics)
+
+    def _leave_deck(self, physics: mjcf.Physics, agents: list[int]) -> None:
+        """Put the aircraft ``agents`` at rest on their stands of the apron, braked (they are done)."""
+        for i in agents:
+            agent = self._agents[i]
+            agent.set_pose(physics, np.array([*self._stands[i], 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+            agent.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
+            physics.bind(list(agent.mjcf_model.find_all("joint"))).qvel = 0.0
+            self._d.ctrl[self._ctrl_agents[i]] = _BRAKED
+        mujoco.mj_forward(self._m, self._d)
 
     def get_reward(self, physics: mjcf.Physics) -> np.ndarray:
         """Eq. 16 for the last step, per aircraft (0 for one that was done before it)."""
@@ -334,6 +382,7 @@ class MultiNavigate(Navigate):
         as its moving obstacles, with the task's prediction of each."""
         st, i = self._state, agent
         rows = self._view_rows[i][1:]
+        future = self._prediction.positions[self._pred_rows[i]].copy()
         return PlannerView(
             agent_xy=st["xy"][i].copy(),
             agent_yaw=float(st["yaw"][i]),
@@ -343,7 +392,7 @@ class MultiNavigate(Navigate):
             goal_radius=self.spec.agent.goal_radius,
             statics=self._static_fp,
             movers=Footprints(st["xy"][rows], self._dyn_half, st["yaw"][rows], self._dyn_radius),
-            mover_future=self._prediction.positions[self._pred_rows[i]].copy(),
+            mover_future=future,
             bounds=self._arena.bounds,
             reach=self.spec.agent.reach,
             period=self.spec.episode.control_period,

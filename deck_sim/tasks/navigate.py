@@ -523,8 +523,8 @@ class Navigate(composer.Task):
         """The movers' positions over the next ``steps`` control steps, (n, steps, 2), by simulating ahead.
 
         A copy of the physics state and of the movers' behaviour (its random generator included) is stepped
-        forward with the agent braking where it stands; the real episode is untouched. Exact while the movers
-        do not react to the agent.
+        forward with the agent (every agent) braking where it stands; the real episode is untouched. Exact while
+        the movers do not react to the agent.
         """
         d_saved = mujoco.MjData(self._m)
         mujoco.mj_copyData(d_saved, self._m, self._d)
@@ -532,16 +532,14 @@ class Navigate(composer.Task):
         out = np.zeros((len(self._movers), steps, 2))
         try:
             d = self._d
-            if isinstance(self._agent, Aircraft):
-                d.ctrl[self._ctrl_agent] = (0.0, 0.0, 1.0, 1.0)
-            else:
-                d.ctrl[self._ctrl_agent] = 0.0
+            for ctrl in self._ctrl_agents:
+                d.ctrl[ctrl] = (0.0, 0.0, 1.0, 1.0) if isinstance(self._agent, Aircraft) else 0.0
             st = self._stepper.read_state()
             for k in range(steps):
                 self._mover_driver.command(d.time, st)
                 mujoco.mj_step(self._m, d, nstep=self._n_sub)
                 st = self._stepper.read_state()
-                out[:, k] = st["xy"][1:]
+                out[:, k] = st["xy"][self._n_agents :]
         finally:
             mujoco.mj_copyData(self._d, self._m, d_saved)
             self._behaviour.restore(behaviour_saved)
