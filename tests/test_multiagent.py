@@ -123,6 +123,8 @@ def test_an_aircraft_that_is_done_leaves_the_deck_for_its_stand_with_no_reward()
     assert info["reached_goal"] and info["collision"] is None and ts.reward[1] > 100.0
     assert np.linalg.norm(info["done_position"] - info["target"]) <= task.spec.agent.goal_radius
     stand = np.array([HANGAR_X - HANGAR_SPACING, 0.0])
+    # from the step it left, it is predicted to stand on its stand (its history is replaced, not a jump)
+    np.testing.assert_allclose(task.last_info["prediction"][-1], np.repeat(stand[None], 10, 0), atol=0.5)
     for _ in range(6):
         ts = env.step([np.zeros(2), np.array([1.0, 1.0])])  # its action is ignored
         assert ts.reward[1] == 0.0 and ts.discount[1] == 0.0 and ts.discount[0] == 1.0 and not ts.last()

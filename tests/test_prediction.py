@@ -151,6 +151,22 @@ def test_mpc_stopped_mover_stays_put(mpc: MPCPredictor) -> None:
         np.testing.assert_allclose(p.positions, np.repeat(here[:, None, :], N, axis=1), atol=1e-9)
 
 
+def test_mpc_forget_resets_only_the_named_movers_memory(mpc: MPCPredictor) -> None:
+    """A vehicle that left and stands elsewhere is estimated afresh; the others keep their estimates."""
+    spots = np.array([[0.0, 0.0], [40.0, 0.0]])
+    kinds = np.array([WHEELED, WHEELED])
+    mpc.reset(spots, kinds)
+    tracks = np.stack([straight_track(np.array([5.0, 1.0]), np.array([2.0, 0.0]), 20),
+                       straight_track(np.array([30.0, -3.0]), np.array([-1.5, 0.5]), 20)])
+    for w in windows(tracks):
+        mpc.predict(ObstacleTracks(dt=DT, positions=w, kinds=kinds))
+    before = mpc._mem.copy()
+    assert np.any(before[0] != 0.0) and np.any(before[1] != 0.0)
+    mpc.forget([0])
+    np.testing.assert_array_equal(mpc._mem[0], 0.0)
+    np.testing.assert_array_equal(mpc._mem[1], before[1])
+
+
 def test_mpc_braking_mover_predicted_to_stop_near_its_spot(mpc: MPCPredictor) -> None:
     """A tractor braking at 1 m/s^2 towards a spot: once braking is seen, the prediction stops near the spot.
 

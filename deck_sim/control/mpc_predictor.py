@@ -163,6 +163,12 @@ class MPCPredictor:
         self._pedestrian = (self._kinds == _PEDESTRIAN).astype(np.float64)
         self._no_force = np.full(len(self._kinds), -1.0)
 
+    def forget(self, rows: list[int]) -> None:
+        """Forget what was estimated of the movers ``rows`` (indices into the last ``reset``'s kinds): for a
+        vehicle that left and stands elsewhere now, whose history the caller has replaced."""
+        if self._mem is not None and len(rows):
+            self._mem[np.asarray(rows, dtype=int)] = self._initial_memory(len(rows))
+
     def _initial_memory(self, n: int) -> np.ndarray:
         """(n, memory_size) memory of movers never seen: no estimate, uniform belief, nothing excluded."""
         return np.zeros((n, self.settings.memory_size))

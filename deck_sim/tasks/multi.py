@@ -137,6 +137,7 @@ class MultiNavigate(Navigate):
             rgba=[0.28, 0.29, 0.31, 1.0],
         )
         self._stands = np.array([[HANGAR_X - HANGAR_SPACING * i, 0.0] for i in range(k)])
+        self._agent_joints = [list(a.mjcf_model.find_all("joint")) for a in self._agents]
 
     # -- composer plumbing ---------------------------------------------------------------------------------
     @property
@@ -248,7 +249,8 @@ class MultiNavigate(Navigate):
         self._stepper.substeps()
 
     def after_step(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
-        """Read the new state; histories, prediction, every aircraft's reward and outcome, the observations."""
+        """Read the new state; every aircraft's reward and outcome (those done leave the deck), the histories, the
+        prediction and the observations."""
         stepper = self._stepper
         stepper.check_contacts()
         spec, k = self.spec, self._n_agents
@@ -259,9 +261,6 @@ class MultiNavigate(Navigate):
             self._rescued += self._mover_driver.rescue(physics, lost, st)
             st = stepper.read_state()
         self._state = st
-        self._history[:, :-1] = self._history[:, 1:]
-        self._history[:, -1] = st["xy"][self._dyn_rows]
-        self._prediction = self._predict(physics)
         r = spec.reward
         weights = (r.w_attraction, r.w_repulsion, r.w_collision, r.w_goal)
         finished: list[int] = []
@@ -295,7 +294,16 @@ class MultiNavigate(Navigate):
         if finished and not self._diverged:
             self._leave_deck(physics, finished)
             st = self._state = stepper.read_state()
-            self._history[:, -1] = st["xy"][self._dyn_rows]
+        self._history[:, :-1] = self._history[:, 1:]
+        self._history[:, -1] = st["xy"][self._dyn_rows]
+        if finished and not self._diverged:
+            # an aircraft that left has always stood on its stand, as far as the predictor can tell
+            rows = [len(self._movers) + i for i in finished]
+            self._history[rows] = st["xy"][finished][:, None, :]
+            forget = getattr(self._predictor, "forget", None)
+            if forget is not None:
+                forget(rows)
+        self._prediction = self._predict(physics)
         self._terminal = all(self._done) or self._diverged
         self._update_observation()
         self._update_info(physics)
@@ -306,7 +314,7 @@ class MultiNavigate(Navigate):
             agent = self._agents[i]
             agent.set_pose(physics, np.array([*self._stands[i], 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
             agent.set_velocity(physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
-            physics.bind(list(agent.mjcf_model.find_all("joint"))).qvel = 0.0
+            physics.bind(self._agent_joints[i]).qvel = 0.0
             self._d.ctrl[self._ctrl_agents[i]] = _BRAKED
         mujoco.mj_forward(self._m, self._d)
 
