@@ -5,11 +5,13 @@
 order (as ``deck_sim.wrappers.DeckSimEnv`` flattens it), float32; its action is a Box (2,) in [-1, 1], the
 displacement asked over the next decision as a fraction of the scene's reach.
 
-An aircraft that reaches its target, collides or leaves the surface is terminated and leaves ``agents`` (it stays
-parked on the deck, an obstacle to the others: ``deck_sim.tasks.multi``); at the scene's time limit every aircraft
-still moving is truncated. ``step`` needs an action for every aircraft in ``agents``: a missing one, an unknown
-name, or an action that is not a finite pair in [-1, 1] raises ``InvalidActionError`` naming the aircraft, and
-nothing moves. An action for an aircraft that has already left is ignored (its body stands braked).
+An aircraft that reaches its target, collides or leaves the surface is terminated and leaves ``agents`` (it leaves
+the deck too, for its stand on an apron beyond the stern: ``deck_sim.tasks.multi``); on divergence every aircraft
+still taxiing is terminated; at the scene's time limit every aircraft still taxiing is truncated. Each aircraft's
+info is its ``task.last_info["agents"]`` record plus the episode's ``diverged`` flag. ``step`` needs an action for
+every aircraft in ``agents``: a missing one, an unknown name, or an action that is not a finite pair in [-1, 1]
+raises ``InvalidActionError`` naming the aircraft, and nothing moves. An action for an aircraft that has already
+left is ignored (its body stands braked).
 """
 
 from __future__ import annotations
@@ -103,8 +105,9 @@ class DeckParallelEnv(ParallelEnv):
         }
 
     def _infos(self, names: list[str]) -> dict[str, dict[str, Any]]:
-        per_agent = {info["name"]: info for info in self._env.task.last_info["agents"]}
-        return {a: dict(per_agent[a]) for a in names}
+        info = self._env.task.last_info
+        per_agent = {record["name"]: record for record in info["agents"]}
+        return {a: {**per_agent[a], "diverged": bool(info["diverged"])} for a in names}
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None

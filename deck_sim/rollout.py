@@ -250,7 +250,7 @@ def run_team_episode(
             EpisodeResult(
                 scene=task.spec.name,
                 episode=episode,
-                outcome=outcome_of({**a, "diverged": info["diverged"]}, truncated=not a["done"]),
+                outcome=outcome_of({**a, "diverged": info["diverged"] and not a["done"]}, truncated=not a["done"]),
                 steps=len(xy) - 1,
                 sim_time=float(a["done_time"] if a["done_time"] is not None else info["time"]),
                 reward=float(total[i]),

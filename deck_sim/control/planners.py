@@ -56,6 +56,9 @@ class ScriptedPlanner:
     too. Off: the agent's disc along the path, as if it could move sideways. Nothing changes for a walker, whose
     disc is its body."""
 
+    keep_plan: bool = False
+    """Keep ``planned`` after every ``act`` (``PrioritisedPlanner`` shares it with the agents after this one)."""
+
     def __post_init__(self) -> None:
         self.reset()
 
@@ -63,8 +66,9 @@ class ScriptedPlanner:
         """Forget the previous episode's obstacles."""
         self._graph: VisibilityGraph | None = None
         self.planned = np.zeros((0, 2))
-        """(N, 2) where the last ``act`` means the agent to be over the next N periods (metres, world): the points
-        along its path at the speed it chose, or (``body``, an aircraft) its kinematic rollout towards them."""
+        """(N, 2) where the last ``act`` means the agent to be over the next N periods (metres, world; with
+        ``keep_plan``): the points along its path at the speed it chose, or (``body``, an aircraft) its kinematic
+        rollout towards them."""
         self._graph_key: tuple | None = None
 
     def _parked(self, view: PlannerView) -> np.ndarray:
@@ -111,7 +115,7 @@ class ScriptedPlanner:
     def act(self, view: PlannerView) -> np.ndarray:
         """Action (2,) in [-1, 1]^2: the displacement to ask for over the next period, as a fraction of reach.
 
-        Sets ``planned``: where the agent means to be over the movers' horizon."""
+        With ``keep_plan``, sets ``planned``: where the agent means to be over the movers' horizon."""
         path = self.path(view)
         scale = view.reach / 3.0
         carrot = _point_along(path, self.lookahead * max(scale, 0.25))
@@ -119,11 +123,12 @@ class ScriptedPlanner:
         dist_goal = float(np.linalg.norm(view.target_xy - view.agent_xy))
         direction = to_carrot / max(float(np.linalg.norm(to_carrot)), 1e-9)
         fraction, _ = self._safe_speed(view, path)
-        self.planned = self._along(view, path, fraction, max(view.mover_future.shape[1], 1))
-        if self.body and view.agent_limits is not None:  # where its kinematics take it along those points
-            self.planned, _ = rollout_displacements(
-                view.agent_xy, view.agent_yaw, view.agent_speed, self.planned, view.period, view.agent_limits
-            )
+        if self.keep_plan:
+            self.planned = self._along(view, path, fraction, max(view.mover_future.shape[1], 1))
+            if self.body and view.agent_limits is not None:  # where its kinematics take it along those points
+                self.planned, _ = rollout_displacements(
+                    view.agent_xy, view.agent_yaw, view.agent_speed, self.planned, view.period, view.agent_limits
+                )
         # do not overshoot the goal
         step = min(fraction * view.reach, max(dist_goal - 0.5 * view.goal_radius, 0.0))
         return np.clip(direction * step / view.reach, -1.0, 1.0)
@@ -210,9 +215,8 @@ class PrioritisedPlanner:
     (``ScriptedPlanner.planned``), instead of the task's forecast of them. The agents after it, which have not
     planned yet, keep the task's forecast, as every mover does.
 
-    The order is the agents' distance to their targets, nearest first (an aircraft about to park goes before one
-    that has far to go), the index breaking ties; an agent that is done (None in ``act``'s ``views``) stands and
-    is planned around like any parked vehicle.
+    The order is the agents' index (a fixed order: one that changed from step to step would let two agents each
+    expect the other to give way); an agent that is done (None in ``act``'s ``views``) does not plan.
 
     Args:
         n_agents: how many agents plan.
@@ -221,7 +225,9 @@ class PrioritisedPlanner:
 
     def __init__(self, n_agents: int, **scripted: float | bool | tuple[float, ...]) -> None:
         scripted.setdefault("body", True)
-        self._planners = [ScriptedPlanner(**scripted) for _ in range(n_agents)]  # type: ignore[arg-type]
+        self._planners = [
+            ScriptedPlanner(**scripted, keep_plan=True) for _ in range(n_agents)  # type: ignore[arg-type]
+        ]
 
     def reset(self) -> None:
         """Forget the previous episode."""

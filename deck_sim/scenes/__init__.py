@@ -1,4 +1,5 @@
-"""Scene specifications as data: ``deck1``, ``deck2`` and ``square`` TOML files, validated on load.
+"""Scene specifications as data: ``deck1``, ``deck2``, ``square`` and the multi-aircraft ``deck1-multi`` and
+``deck2-multi`` TOML files, validated on load.
 
 Every constant of a scene lives in its TOML file: obstacle counts, where things spawn, the movers' speeds, the
 episode limits and every reward constant (paper eq. 10-16). ``load_scene`` checks each field's type and bounds (each

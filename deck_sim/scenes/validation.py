@@ -212,6 +212,11 @@ def _validate_agents(spec: SceneSpec, w: str) -> None:
     if k == 1:
         return
     _check(a.vehicle == "aircraft", f"{w}.count", f"several agents must be aircraft, agent.vehicle is {a.vehicle!r}")
+    _check(
+        spec.arena == "deck",
+        f"{w}.count",
+        f"several aircraft need the deck (their apron lies beyond its stern), the arena is {spec.arena!r}",
+    )
     for name in ("start_sites", "target_sites"):
         sites = getattr(a, name)
         _check(

@@ -196,8 +196,8 @@ def _start_and_target(
 
 
 _AGENT_SPACING = 2.0
-"""Metres between the discs of two aircraft at their starts, and (less the goal radius) at their targets, in a
-multi-agent scene."""
+"""Metres between the discs of two aircraft at their starts in a multi-agent scene (their targets are at least two
+discs' radii apart)."""
 
 
 def _starts_and_targets(

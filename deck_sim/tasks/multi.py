@@ -20,9 +20,10 @@ reward and discount are 0 from then on, and its actions are ignored. The episode
 at the time limit, or when the physics diverges. A collision between two aircraft is a collision for both: each
 one's contact names the other.
 
-Why it leaves rather than parks where it stopped: the movers plan their routes round the static obstacles once per
-episode, and an aircraft standing at a catapult or a queue spot would stand in their routes for the rest of the
-episode, holding them (they yield to aircraft) and, through them, the aircraft still taxiing.
+Why it leaves rather than parks where it stopped: the movers route round the static obstacles of the episode's start
+(their route graphs are built once per episode), and an aircraft standing at a catapult or a queue spot would stand
+in their routes for the rest of the episode, holding them (they yield to aircraft) and, through them, the aircraft
+still taxiing.
 """
 
 from __future__ import annotations
