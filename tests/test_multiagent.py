@@ -270,3 +270,17 @@ def test_the_gymnasium_environment_points_a_multi_aircraft_scene_to_pettingzoo()
 
     with pytest.raises(ValueError, match="deck_sim.multiagent.parallel_env"):
         DeckSimEnv(scene="deck1-multi")
+
+
+@pytest.mark.parametrize(("scene", "count"), [("deck1-multi", k) for k in range(2, 9)] + [("deck2-multi", 8)])
+def test_every_aircraft_count_gets_a_layout(scene, count):
+    env = deck_sim.load(scene, seed=0, agents__count=count)
+    task, spec = env.task, env.task.spec
+    for seed in range(5):
+        layout = task.sample_layout(np.random.default_rng(seed))
+        assert len(layout.agents_xy) == len(set(layout.target_sites)) == count
+        gaps = np.linalg.norm(layout.agents_xy[:, None] - layout.agents_xy[None], axis=-1) + np.eye(count) * 1e9
+        assert gaps.min() > 2 * spec.agent.radius
+    env.reset()
+    assert env.task.get_reward(env.physics).shape == (count,) and len(env.action_spec()) == count
+    env.close()
