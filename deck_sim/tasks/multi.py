@@ -38,8 +38,7 @@ from dm_control.composer.observation import observable
 from dm_env import specs
 
 from deck_sim.control.prediction import Predictor
-from deck_sim.control.tracking import track_displacement
-from deck_sim.geometry import Footprints, world_to_agent
+from deck_sim.geometry import Footprints
 from deck_sim.scenes import SceneSpec
 from deck_sim.tasks import rewards
 from deck_sim.tasks.actions import InvalidActionError, checked_action
@@ -231,22 +230,12 @@ class MultiNavigate(Navigate):
         """Check every active aircraft's action, set every actuator, and run all physics substeps but composer's
         last one; an aircraft that is done brakes."""
         acts = checked_actions(action, self.agent_names, [not done for done in self._done])
-        spec, d, st = self.spec, self._d, self._state
-        period, reach = spec.episode.control_period, spec.agent.reach
         for i, a in enumerate(acts):
             if a is None:
-                d.ctrl[self._ctrl_agents[i]] = _BRAKED
-                continue
-            a0, a1 = a
-            yaw = float(st["yaw"][i])
-            if self._agent_frame:
-                c, s = math.cos(yaw), math.sin(yaw)
-                a0, a1 = c * a0 - s * a1, s * a0 + c * a1
-            cmd = track_displacement(
-                a0 * reach, a1 * reach, yaw, float(st["forward_speed"][i]), period, self._aircraft_limits
-            )
-            d.ctrl[self._ctrl_agents[i]] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
-        self._mover_driver.command(d.time, st)
+                self._d.ctrl[self._ctrl_agents[i]] = _BRAKED
+            else:
+                self._drive_aircraft(i, *a)
+        self._mover_driver.command(self._d.time, self._state)
         self._stepper.substeps()
 
     def after_step(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
@@ -419,10 +408,3 @@ class MultiNavigate(Navigate):
                 if j != i:
                     rows[i, j] = n + (j if j < i else j - 1)
         return rows
-
-    def action_from_world(self, action: np.ndarray, agent: int = 0) -> np.ndarray:  # type: ignore[override]
-        """A world-frame action (2,) of aircraft ``agent`` in this task's action frame (``Navigate``'s)."""
-        action = np.asarray(action, dtype=np.float64)
-        if not self._agent_frame:
-            return action
-        return np.clip(world_to_agent(action, float(self._state["yaw"][agent])), -1.0, 1.0)

@@ -408,27 +408,39 @@ class Navigate(composer.Task):
     def before_step(self, physics: mjcf.Physics, action: np.ndarray, random_state: np.random.RandomState) -> None:
         """Check the action, set every actuator, and run all physics substeps but composer's last one."""
         a0, a1 = checked_action(action)
-        spec, d, st = self.spec, self._d, self._state
-        period = spec.episode.control_period
-        if self._agent_frame:  # ahead and to the left -> the world's axes (``agent_to_world`` on two floats)
-            c, s = math.cos(float(st["yaw"][0])), math.sin(float(st["yaw"][0]))
-            a0, a1 = c * a0 - s * a1, s * a0 + c * a1
+        spec, st = self.spec, self._state
         if isinstance(self._agent, Aircraft):
-            reach = spec.agent.reach
-            cmd = track_displacement(
-                a0 * reach,
-                a1 * reach,
-                float(st["yaw"][0]),
-                float(st["forward_speed"][0]),
-                period,
-                self._aircraft_limits,
-            )
-            d.ctrl[self._ctrl_agent] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
+            self._drive_aircraft(0, a0, a1)
         else:
+            a0, a1 = self._to_world(0, a0, a1)
+            period = spec.episode.control_period
             displacement = np.array([a0, a1]) * spec.agent.reach
-            d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
+            self._d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
         self._mover_driver.command(self._d.time, st)
         self._stepper.substeps()  # composer runs the final one
+
+    def _to_world(self, i: int, a0: float, a1: float) -> tuple[float, float]:
+        """Agent i's action (a0, a1) in the world's axes: as given in the world frame; in the agent frame, ahead
+        and to the left turned by its yaw (``agent_to_world`` on two floats)."""
+        if not self._agent_frame:
+            return a0, a1
+        yaw = float(self._state["yaw"][i])
+        c, s = math.cos(yaw), math.sin(yaw)
+        return c * a0 - s * a1, s * a0 + c * a1
+
+    def _drive_aircraft(self, i: int, a0: float, a1: float) -> None:
+        """Write aircraft i's controls (steer, thrust, brakes) for its action (a0, a1) in the task's frame."""
+        a0, a1 = self._to_world(i, a0, a1)
+        st, reach = self._state, self.spec.agent.reach
+        cmd = track_displacement(
+            a0 * reach,
+            a1 * reach,
+            float(st["yaw"][i]),
+            float(st["forward_speed"][i]),
+            self.spec.episode.control_period,
+            self._aircraft_limits,
+        )
+        self._d.ctrl[self._ctrl_agents[i]] = (cmd.steer, cmd.thrust, cmd.brake, cmd.brake)
 
     def after_step(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
         """Read the new state, update histories, prediction, reward, termination and observation."""
@@ -587,8 +599,9 @@ class Navigate(composer.Task):
             "prediction": self._prediction.positions.copy(),
         }
 
-    def action_from_world(self, action: np.ndarray) -> np.ndarray:
-        """A world-frame action (2,) in this task's action frame (``episode.frame``), clipped to [-1, 1]^2.
+    def action_from_world(self, action: np.ndarray, agent: int = 0) -> np.ndarray:
+        """A world-frame action (2,) of the agent (of aircraft ``agent`` in a multi-agent scene) in this task's
+        action frame (``episode.frame``), clipped to [-1, 1]^2.
 
         Identity in the world frame; in the agent frame it is turned by minus the agent's current yaw, which is
         exact (no clipping) for actions in the unit disc, as every planner's are. The scripted and classical
@@ -596,7 +609,7 @@ class Navigate(composer.Task):
         action = np.asarray(action, dtype=np.float64)
         if not self._agent_frame:
             return action
-        return np.clip(world_to_agent(action, float(self._state["yaw"][0])), -1.0, 1.0)
+        return np.clip(world_to_agent(action, float(self._state["yaw"][agent])), -1.0, 1.0)
 
     def route_points(self, agent_xy: np.ndarray, target_xy: np.ndarray | None = None) -> np.ndarray:
         """(``route_steps``, 2) world points ``k * agent.reach`` metres (k = 1, 2, ...) along the shortest path
