@@ -28,32 +28,38 @@ class LayoutError(ValueError):
 
 @dataclass
 class Layout:
-    """Where everything starts in one episode (planar, metres and radians).
+    """Where everything starts in one episode (planar, metres and radians): every agent's start and target (one
+    row per agent; a single-agent scene has one), the static obstacles and the movers."""
 
-    ``agent_xy``, ``agent_yaw``, ``target_xy`` and ``target_site`` are the (first) agent's; ``agents_xy`` (k, 2),
-    ``agents_yaw`` (k,), ``targets_xy`` (k, 2) and ``target_sites`` hold every agent's of a multi-agent scene (the
-    one agent's otherwise)."""
-
-    agent_xy: np.ndarray
-    agent_yaw: float
-    target_xy: np.ndarray
+    agents_xy: np.ndarray  # (k, 2)
+    agents_yaw: np.ndarray  # (k,)
+    targets_xy: np.ndarray  # (k, 2)
     static_xy: np.ndarray  # (m, 2)
     static_yaw: np.ndarray  # (m,)
     mover_xy: np.ndarray  # (n, 2)
     mover_spot: np.ndarray  # (n,) spot index or -1
-    target_site: str = ""
-    static_sites: list[str] = field(default_factory=list)
-    agents_xy: np.ndarray | None = None
-    agents_yaw: np.ndarray | None = None
-    targets_xy: np.ndarray | None = None
     target_sites: list[str] = field(default_factory=list)
+    static_sites: list[str] = field(default_factory=list)
 
-    def __post_init__(self) -> None:
-        if self.agents_xy is None:
-            self.agents_xy = np.asarray(self.agent_xy, dtype=float).reshape(1, 2)
-            self.agents_yaw = np.array([self.agent_yaw], dtype=float)
-            self.targets_xy = np.asarray(self.target_xy, dtype=float).reshape(1, 2)
-            self.target_sites = [self.target_site]
+    @property
+    def agent_xy(self) -> np.ndarray:
+        """(2,) the (first) agent's start."""
+        return self.agents_xy[0]
+
+    @property
+    def agent_yaw(self) -> float:
+        """The (first) agent's start heading."""
+        return float(self.agents_yaw[0])
+
+    @property
+    def target_xy(self) -> np.ndarray:
+        """(2,) the (first) agent's target."""
+        return self.targets_xy[0]
+
+    @property
+    def target_site(self) -> str:
+        """The site of the (first) agent's target."""
+        return self.target_sites[0]
 
 
 def yaw_quat(yaw: float) -> np.ndarray:
@@ -117,7 +123,6 @@ def sample_layout(
         starts, yaws, targets, target_sites = agent_xy[None], np.array([agent_yaw]), target_xy[None], [target_site]
     else:
         starts, yaws, targets, target_sites = _starts_and_targets(spec, arena, rng)
-        agent_xy, agent_yaw, target_xy, target_site = starts[0], float(yaws[0]), targets[0], target_sites[0]
 
     chosen = _slotted_sites(spec, arena, slotted_footprint, starts, targets, rng)
     static_xy = [s.xy for s in chosen]
@@ -158,19 +163,15 @@ def sample_layout(
         spec, lo, hi, all_fp, starts, targets, spot_xy, mover_spawn_radius, mover_names, rng
     )
     return Layout(
-        agent_xy=agent_xy,
-        agent_yaw=agent_yaw,
-        target_xy=target_xy,
+        agents_xy=starts,
+        agents_yaw=yaws,
+        targets_xy=targets,
         static_xy=np.array(static_xy).reshape(-1, 2),
         static_yaw=np.array(static_yaw),
         mover_xy=mover_xy,
         mover_spot=mover_spot,
-        target_site=target_site,
-        static_sites=[s.name for s in chosen],
-        agents_xy=starts,
-        agents_yaw=yaws,
-        targets_xy=targets,
         target_sites=target_sites,
+        static_sites=[s.name for s in chosen],
     )
 
 

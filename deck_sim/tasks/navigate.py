@@ -133,7 +133,6 @@ class Navigate(composer.Task):
                 group=2,
             )
             self._target_bodies.append(body)
-        self._target_body = self._target_bodies[0]
         lo, hi = arena.bounds
         centre, extent = (lo + hi) / 2.0, (hi - lo) * 1.06
         height = 1.5 * float(extent[0])
@@ -166,7 +165,6 @@ class Navigate(composer.Task):
             )
             for agent in self._agents
         ]
-        self._contact_sensor = self._contact_sensors[0]
 
         # composer sees one substep per control step; after_compile restores the real timestep
         self._n_sub = int(round(ep.control_period / ep.physics_timestep))
@@ -322,7 +320,6 @@ class Navigate(composer.Task):
             self.spec.episode.collision_checks,
         )
         self._ctrl_agents = [as_slice(physics.bind(list(a.actuators)).element_id) for a in self._agents]
-        self._ctrl_agent = self._ctrl_agents[0]
         # controller constants come from the compiled model, not from copies of the XML's numbers
         if isinstance(self._agent, Aircraft):
             self._aircraft_limits = AircraftLimits(**self._agent.physical_limits(physics))
@@ -413,9 +410,9 @@ class Navigate(composer.Task):
             self._drive_aircraft(0, a0, a1)
         else:
             a0, a1 = self._to_world(0, a0, a1)
-            period = spec.episode.control_period
-            displacement = np.array([a0, a1]) * spec.agent.reach
-            self._d.ctrl[self._ctrl_agent] = track_velocity(displacement[None], period, spec.agent.reach / period)[0]
+            period, reach = spec.episode.control_period, spec.agent.reach
+            displacement = np.array([a0, a1]) * reach
+            self._d.ctrl[self._ctrl_agents[0]] = track_velocity(displacement[None], period, reach / period)[0]
         self._mover_driver.command(self._d.time, st)
         self._stepper.substeps()  # composer runs the final one
 

@@ -51,10 +51,10 @@ class FusedStepper:
     Args:
         physics: the compiled physics.
         arena: the arena (its fixed obstacles' geoms and its surface).
-        agent: the agent's entity, or every agent's (a list) when several act at once.
+        agents: the agents' entities (one, or several acting at once); their rows lead the state.
         movers: the movers' entities.
         statics: the static obstacles' entities.
-        contact_sensor: the agent's contact sensor (how many contacts its own body has), or one per agent.
+        contact_sensors: each agent's contact sensor (how many contacts its own body has).
         n_substeps: physics steps per control step.
         collision_checks: contact checks per control step.
     """
@@ -63,20 +63,18 @@ class FusedStepper:
         self,
         physics: mjcf.Physics,
         arena: _SiteArena,
-        agent: Aircraft | Pedestrian | list[Aircraft],
+        agents: list[Aircraft | Pedestrian],
         movers: list[Tractor | Aircraft | Pedestrian],
         statics: list[StaticProp],
-        contact_sensor: mjcf.Element | list[mjcf.Element],
+        contact_sensors: list[mjcf.Element],
         n_substeps: int,
         collision_checks: int,
     ) -> None:
         m = physics.model
         self._m, self._d = m.ptr, physics.data.ptr
         self._arena = arena
-        agents = list(agent) if isinstance(agent, list) else [agent]
-        sensors = list(contact_sensor) if isinstance(contact_sensor, list) else [contact_sensor]
-        if len(sensors) != len(agents):
-            raise ValueError(f"one contact sensor per agent: {len(agents)} agents, {len(sensors)} sensors")
+        if len(contact_sensors) != len(agents):
+            raise ValueError(f"one contact sensor per agent: {len(agents)} agents, {len(contact_sensors)} sensors")
         self.n_agents = k = len(agents)
         """How many agents lead the state's rows."""
         vehicles = [*agents, *movers]
@@ -135,7 +133,7 @@ class FusedStepper:
             mask = np.zeros(m.ngeom, dtype=bool)
             mask[[physics.bind(g).element_id for g in a.mjcf_model.find_all("geom")]] = True
             self._agent_geoms.append(mask)
-        self._contact_adrs = [int(physics.bind(c).adr) for c in sensors]
+        self._contact_adrs = [int(physics.bind(c).adr) for c in contact_sensors]
         self._warning_ids = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
         # the fused substeps (all but composer's last one), split for contact checks
         n_fused = n_substeps - 1
