@@ -36,7 +36,7 @@ def _without_notes(config: dict) -> dict:
 
 def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe_and_the_decks_a_planner_recipe():
     planner = ("deck1-planner", "deck2-planner")
-    assert recipe_names() == sorted([*SCENES, *(f"{s}-reward" for s in SCENES), *planner])
+    assert recipe_names() == sorted([*SCENES, *(f"{s}-reward" for s in SCENES), *planner, "deck1-multi"])
     for name in planner:
         recipe = load_recipe(name)
         assert recipe.algos == ("mddpg", "ddpg")  # taught agents only: DQN and A2C learn from the reward
@@ -112,8 +112,8 @@ def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(caps
         assert main(["train", "--recipe", "deck1", *clash, "--print-config"]) == 2
         assert f"drop {clash[0]}" in capsys.readouterr().err
     assert main(["train", "--recipe", "nowhere", "--print-config"]) == 2
-    assert ("unknown recipe 'nowhere'; known recipes: deck1, deck1-planner, deck1-reward, deck2, deck2-planner, "
-            "deck2-reward, square, square-reward") in capsys.readouterr().err
+    assert ("unknown recipe 'nowhere'; known recipes: deck1, deck1-multi, deck1-planner, deck1-reward, deck2, "
+            "deck2-planner, deck2-reward, square, square-reward") in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -188,3 +188,13 @@ def test_train_shipped_refuses_an_agent_whose_recipe_the_scene_lacks():
                           env={**os.environ, "MUJOCO_GL": "disable"})
     assert done.returncode != 0
     assert "square mddpg-planner: no recipe training/recipes/square-planner.toml" in done.stderr
+
+
+def test_the_multi_aircraft_recipe_trains_a_shared_taught_actor_on_deck1_multi():
+    from training.team import is_multi_agent
+
+    recipe = load_recipe("deck1-multi")
+    assert recipe.algos == ("mddpg", "ddpg") and recipe.scene == "deck1-multi"
+    for algo in recipe.algos:
+        config = recipe.config(algo, 0)
+        assert is_multi_agent(config) and config.regime == "oracle-teacher"

@@ -32,10 +32,9 @@ import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import torch
 
-from training.config import ConfigError, TrainConfig, bc_weight_at, train_episode_seed
+from training.config import ConfigError, TrainConfig, bc_weight_at
 
 if TYPE_CHECKING:
     from training.loop import Trainer
@@ -295,17 +294,7 @@ def save_checkpoint(trainer: Trainer) -> Path:
         "noise": trainer.noise.state_dict(),
         "rng": trainer.rng.bit_generator.state,
         "torch_rng": torch.get_rng_state(),
-        "slots": [
-            {
-                "episode": s.episode,
-                "stage": s.stage,
-                "ret": s.ret,
-                "length": s.length,
-                "actions": torch.from_numpy(np.asarray(s.actions, dtype=np.float64).reshape(-1, 2)),
-                "obs": torch.from_numpy(np.array(s.obs, dtype=np.float32)),  # (a Ray actor's are read-only)
-            }
-            for s in trainer.slots
-        ],
+        "slots": trainer.slot_states(),
     }
     path = trainer.run_dir / CHECKPOINT
     _write(state, path)
@@ -339,20 +328,7 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
     trainer.dagger_done = int(state.get("dagger_done", 0))
     trainer.demo_summary = dict(state["demo_summary"])
     trainer.rng.bit_generator.state = state["rng"]
-    for slot, saved in zip(trainer.slots, state["slots"], strict=True):
-        slot.episode = int(saved["episode"])
-        trainer.start_episode(slot, stage=int(saved["stage"]))
-        actions = saved["actions"].numpy()
-        if len(actions):  # replay the episode so far: same seed, same actions, same state (planner included)
-            seed = train_episode_seed(trainer.config.seed, slot.index, slot.episode)
-            slot.obs = trainer.envs.replay(slot.index, seed, actions)
-            slot.actions = list(actions)
-        if not np.array_equal(slot.obs, saved["obs"].numpy()):
-            raise CheckpointError(
-                f"environment {slot.index} did not replay to its checkpointed state: the scene or deck_sim "
-                "changed since the checkpoint was written"
-            )
-        slot.ret, slot.length = float(saved["ret"]), int(saved["length"])
+    trainer.restore_slots(state["slots"])
     trainer.noise.load_state_dict(state["noise"])  # start_episode reset it
     torch.set_rng_state(state["torch_rng"])
     if trainer.runlog.open_csv(truncate_after=trainer.step):

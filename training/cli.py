@@ -55,10 +55,10 @@ def cmd_train(args: argparse.Namespace) -> int:
             print(json.dumps(shown, indent=2, sort_keys=True))
             return 0
         if config is not None:
-            from training.loop import Trainer
+            from training.team import make_trainer
 
-            trainer = Trainer(config, out, resume=args.resume, progress=not args.quiet, backend=args.backend,
-                              workers=args.workers, ray_address=args.ray_address)
+            trainer = make_trainer(config, out, resume=args.resume, progress=not args.quiet, backend=args.backend,
+                                   workers=args.workers, ray_address=args.ray_address)
             try:
                 summary = trainer.train()
             finally:
@@ -289,8 +289,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the agent to train (default: mddpg; with --resume, the run's)")
     p.add_argument("--recipe", default=None,
                    help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained; deck1-reward, "
-                        "deck2-reward, square-reward: from the reward alone) or a recipe TOML file; it sets the "
-                        "scene, the preset and every field the recipe names")
+                        "deck2-reward, square-reward: from the reward alone; deck1-multi: one actor shared by "
+                        "four aircraft) or a recipe TOML file; it sets the scene, the preset and every field the "
+                        "recipe names")
     p.add_argument("--scene", default=None, help="scene name or TOML path (default: deck1, or the recipe's)")
     p.add_argument("--steps", type=int, default=None, help="environment steps (default: the recipe's or preset's)")
     p.add_argument("--seed", type=int, default=None,

@@ -107,7 +107,7 @@ def dagger_round(trainer: Trainer) -> dict[str, Any] | None:
         while trainer.step < end and not trainer._stop:
             trainer.collect(explore=False)
             trainer._tick()
-            bar.update(cfg.num_envs)
+            bar.update(trainer.collected)
     if trainer.step < end:
         log.warning("the DAgger round stopped before its fit: --resume starts it again from the fitted run")
         return None

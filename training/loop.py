@@ -59,7 +59,14 @@ from training.checkpoints import (
 )
 from training.config import ConfigError, CurriculumStage, TrainConfig, bc_weight_at, train_episode_seed
 from training.ddpg import DDPGAgent
-from training.envs import ObservationLayout, collect_demonstrations, env_layout, make_env, stage_overrides
+from training.envs import (
+    Demonstrations,
+    ObservationLayout,
+    collect_demonstrations,
+    env_layout,
+    make_env,
+    stage_overrides,
+)
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
 from training.her import ROUTE_REFUSAL, GoalGeometry, GoalLayoutError, HindsightSampler
 from training.noise import make_noise
@@ -150,13 +157,12 @@ class Trainer:
         torch.use_deterministic_algorithms(True)
         self.rng = np.random.default_rng(cfg.seed)
         self.slots = [_Slot(i) for i in range(cfg.num_envs)]
-        # the full scene fixes the layout of every observation
-        probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)
-        self.layout = env_layout(probe)
-        probe.close()
+        self.collected = cfg.num_envs
+        """Environment steps (transitions) the last collection added."""
+        self.layout = self._agent_layout()
         self.workers = acting_workers(cfg, backend, workers, self._resume_state, self.run_dir / CHECKPOINT)
         self.envs: Any = None
-        self.envs = make_runner(cfg.num_envs, self.workers, AgentView(self.layout, cfg), backend, ray_address)
+        self.envs = self._make_envs(backend, ray_address)
         self.agent = DDPGAgent(self.obs_dim, 2, cfg, torch.Generator().manual_seed(cfg.seed + 1), self.layout.shapes)
         tracking = cfg.her_ratio > 0.0 or cfg.n_step > 1
         self.buffer = ReplayBuffer(
@@ -164,7 +170,7 @@ class Trainer:
         )
         self.hindsight = self._hindsight_sampler() if tracking else None
         """Hindsight targets and n-step returns for the learner's batches (``training.her``), or None."""
-        self.noise = make_noise(cfg.noise, cfg.num_envs, 2, cfg.noise_sigma, cfg.ou_theta)
+        self.noise = make_noise(cfg.noise, self._noise_rows(), 2, cfg.noise_sigma, cfg.ou_theta)
         self.runlog = RunLog(self.run_dir)
         self.stats = EpisodeStats()
         self.step = 0
@@ -194,6 +200,23 @@ class Trainer:
             except GoalLayoutError as err:
                 raise ConfigError(f"her_ratio: {err}") from None
         return HindsightSampler(geometry, cfg.her_ratio, cfg.n_step, cfg.gamma)
+
+    def _agent_layout(self) -> ObservationLayout:
+        """The layout of the agent's observation: the full scene's (every curriculum stage is padded to it)."""
+        cfg = self.config
+        probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)
+        layout = env_layout(probe)
+        probe.close()
+        return layout
+
+    def _make_envs(self, backend: str, ray_address: str | None) -> Any:
+        """The runner of the run's environments (``training.runners``)."""
+        cfg = self.config
+        return make_runner(cfg.num_envs, self.workers, AgentView(self.layout, cfg), backend, ray_address)
+
+    def _noise_rows(self) -> int:
+        """How many actors explore at once (one noise process each)."""
+        return self.config.num_envs
 
     @property
     def obs_dim(self) -> int:
@@ -273,7 +296,7 @@ class Trainer:
             while self.step < end and not self._stop:
                 self.collect()
                 self._tick()
-                bar.update(cfg.num_envs)
+                bar.update(self.collected)
                 if self._crossed(cfg.log_every):
                     now = time.perf_counter()
                     sps = (self.step - step_log) / max(now - t_log, 1e-9)
@@ -312,6 +335,39 @@ class Trainer:
         intact), the one it replaces kept as ``checkpoint.prev.pt``."""
         return save_checkpoint(self)
 
+    def slot_states(self) -> list[dict[str, Any]]:
+        """What the checkpoint keeps of every environment: its episode, stage, return and length so far, the
+        actions taken in the episode (replayed on resume) and its current observation (the replay's check)."""
+        return [
+            {
+                "episode": s.episode,
+                "stage": s.stage,
+                "ret": s.ret,
+                "length": s.length,
+                "actions": torch.from_numpy(np.asarray(s.actions, dtype=np.float64).reshape(-1, 2)),
+                "obs": torch.from_numpy(np.array(s.obs, dtype=np.float32)),  # (a Ray actor's are read-only)
+            }
+            for s in self.slots
+        ]
+
+    def restore_slots(self, states: list[dict[str, Any]]) -> None:
+        """Put every environment back where ``slot_states`` found it: its episode replayed from its seed with the
+        recorded actions; ``CheckpointError`` if the replay does not reach the recorded observation."""
+        for slot, saved in zip(self.slots, states, strict=True):
+            slot.episode = int(saved["episode"])
+            self.start_episode(slot, stage=int(saved["stage"]))
+            actions = saved["actions"].numpy()
+            if len(actions):  # replay the episode so far: same seed, same actions, same state (planner included)
+                seed = train_episode_seed(self.config.seed, slot.index, slot.episode)
+                slot.obs = self.envs.replay(slot.index, seed, actions)
+                slot.actions = list(actions)
+            if not np.array_equal(slot.obs, saved["obs"].numpy()):
+                raise CheckpointError(
+                    f"environment {slot.index} did not replay to its checkpointed state: the scene or deck_sim "
+                    "changed since the checkpoint was written"
+                )
+            slot.ret, slot.length = float(saved["ret"]), int(saved["length"])
+
     def close(self) -> None:
         """Release the environments (and their worker process); ``train`` does so when the run ends."""
         if self.envs is not None:
@@ -344,7 +400,7 @@ class Trainer:
 
     def _crossed(self, every: int) -> bool:
         """Whether the last collection crossed a multiple of ``every`` steps."""
-        n = self.config.num_envs
+        n = self.collected
         return every > 0 and (self.step // every) > ((self.step - n) // every)
 
     def _begin(self) -> None:
@@ -352,17 +408,7 @@ class Trainer:
         evaluation of where they got the actor (step 0), then every environment's first episode."""
         cfg = self.config
         if cfg.demo_episodes:
-            demos = collect_demonstrations(
-                cfg.scene,
-                cfg.demo_episodes,
-                cfg.seed,
-                self.layout,
-                self.progress,
-                noise=cfg.demo_noise,
-                body=cfg.teacher_body,
-                view=cfg.teacher_policy_view,
-                **cfg.scene_overrides,
-            )
+            demos = self._demonstrations()
             self.buffer.add_demos(
                 demos.obs, demos.action, demos.reward, demos.next_obs, demos.terminated, demos.expert_action
             )
@@ -384,6 +430,21 @@ class Trainer:
                 self.evaluate()
         for slot in self.slots:
             self.start_episode(slot)
+
+    def _demonstrations(self) -> Demonstrations:
+        """The planner's ``demo_episodes`` demonstrated episodes (``training.envs.collect_demonstrations``)."""
+        cfg = self.config
+        return collect_demonstrations(
+            cfg.scene,
+            cfg.demo_episodes,
+            cfg.seed,
+            self.layout,
+            self.progress,
+            noise=cfg.demo_noise,
+            body=cfg.teacher_body,
+            view=cfg.teacher_policy_view,
+            **cfg.scene_overrides,
+        )
 
     def collect(self, explore: bool = True) -> None:
         """One step of every environment; the learner's updates run while the environments step.
@@ -452,8 +513,12 @@ class Trainer:
             episode_marks,
         )
         self.step += cfg.num_envs
-        if not explore:
-            return
+        if explore:
+            self._schedule()
+
+    def _schedule(self) -> None:
+        """The exploration noise and the cloning weight for the run's step count."""
+        cfg = self.config
         frac = min(1.0, self.step / max(1.0, cfg.noise_decay * cfg.total_steps))
         self.noise.sigma = cfg.noise_sigma + frac * (cfg.noise_sigma_final - cfg.noise_sigma)
         self.agent.bc_weight = bc_weight_at(cfg, self.step)
@@ -466,12 +531,13 @@ class Trainer:
         except ConfigError:
             return None
 
-    def _learn(self, step: int) -> None:
-        """The updates owed once the run reaches ``step`` environment steps (``updates_per_step`` each)."""
+    def _learn(self, step: int, new: int | None = None) -> None:
+        """The updates owed once the run reaches ``step`` environment steps, ``new`` of them (by default
+        ``num_envs``) in this collection (``updates_per_step`` each)."""
         cfg = self.config
         if step < cfg.learning_starts or self.buffer.size == 0:
             return
-        self.update_debt += cfg.num_envs * cfg.updates_per_step
+        self.update_debt += (cfg.num_envs if new is None else new) * cfg.updates_per_step
         while self.update_debt >= 1.0:
             weights = None
             if self.buffer.prioritised:
@@ -502,15 +568,7 @@ class Trainer:
         them, and export the actor as ``actor_best.npz`` when it beats every earlier evaluation's success."""
         cfg = self.config
         self._tick()
-        if self._eval_env is None:
-            self._eval_env = deck_sim.load(
-                cfg.scene, seed=cfg.eval_seed, **{**cfg.scene_overrides, "episode__predictor": cfg.predictor}
-            )
-        env = self._eval_env
-        env.random_state.seed(cfg.eval_seed)
-        policy = self.actor_policy()
-        results = [run_episode(env, policy, episode=k) for k in range(episodes or cfg.eval_episodes)]
-        summary = summarize(results)
+        summary = self._held_out(episodes or cfg.eval_episodes)
         self.last_eval_step = self.step
         self.runlog.evaluation(eval_row(self.step, self.wall, summary, self.polished))
         summary["success"] = summary["goal_rate"]
@@ -519,3 +577,19 @@ class Trainer:
             meta = actor_meta(cfg, self.layout, self.agent, self.step, self.commit, self.polished)
             save_actor(self.run_dir / "actor_best.npz", self.agent, meta)
         return summary
+
+    def _eval_environment(self) -> Any:
+        """The held-out episodes' composer environment (the full scene, the agent's predictor), reseeded with
+        ``eval_seed``."""
+        cfg = self.config
+        if self._eval_env is None:
+            self._eval_env = deck_sim.load(
+                cfg.scene, seed=cfg.eval_seed, **{**cfg.scene_overrides, "episode__predictor": cfg.predictor}
+            )
+        self._eval_env.random_state.seed(cfg.eval_seed)
+        return self._eval_env
+
+    def _held_out(self, episodes: int) -> dict[str, float]:
+        """``deck_sim.metrics.summarize`` of ``episodes`` held-out episodes of the greedy actor."""
+        env, policy = self._eval_environment(), self.actor_policy()
+        return summarize([run_episode(env, policy, episode=k) for k in range(episodes)])

@@ -1,7 +1,8 @@
 """Training recipes as data: one TOML file per shipped recipe (``deck1.toml``, ``deck2.toml``, ``square.toml``:
 taught by the full-knowledge planner; ``deck1-planner.toml``, ``deck2-planner.toml``: taught by the planner on
 the agent's own observation; ``deck1-reward.toml``, ``deck2-reward.toml``, ``square-reward.toml``: from the
-reward alone, the paper's protocol).
+reward alone, the paper's protocol; ``deck1-multi.toml``: one actor shared by four aircraft at once, taught by the
+full-knowledge prioritised planner, ``training.team``).
 
 A recipe names its scene and one or two tables: ``[ddpg]`` for MDDPG and DDPG (a preset of
 ``training.config.PRESETS``, the training seeds, and any ``TrainConfig`` fields over the preset) and, optionally,

@@ -1,0 +1,112 @@
+"""Shared-parameter training of several aircraft (``training.team``): one buffer holds every taxiing aircraft's
+transitions and nothing of an aircraft that is done, a stopped and resumed run equals an unbroken one, the exported
+actor acts for every aircraft, the regimes are named as for one aircraft, and what several aircraft cannot take
+is refused by name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import short_config as _short
+from training_runs import assert_same_run
+
+import deck_sim
+from deck_sim.policies import LearnedPolicy, SharedPolicy
+from deck_sim.rollout import run_team_episode
+from training.config import ConfigError
+from training.loop import Trainer
+from training.team import TeamTrainer, make_trainer
+
+
+def _team(**fields):  # noqa: ANN003, ANN201
+    """A seconds-long shared run on deck1-multi with two aircraft (two environments), ``fields`` on top."""
+    base = dict(scene="deck1-multi", scene_overrides={"agents__count": 2}, total_steps=160, demo_episodes=0,
+                pretrain_updates=0, learning_starts=40)
+    base.update(fields)
+    return _short(**base)
+
+
+@pytest.mark.slow
+def test_every_taxiing_aircraft_and_no_done_one_gives_a_transition(tmp_path):
+    trainer = make_trainer(_team(), tmp_path / "run", progress=False)
+    assert isinstance(trainer, TeamTrainer) and trainer.k == 2
+    trainer.train(stop_at=1)  # the run's start and its first step
+    taxiing = [trainer.step]
+    while trainer.step < 120:
+        taxiing.append(sum(int(s.live.sum()) for s in trainer.slots))
+        before = trainer.buffer.size
+        trainer.collect()
+        assert trainer.buffer.size - before == taxiing[-1] == trainer.collected
+    assert trainer.step == trainer.buffer.size == sum(taxiing)
+    assert max(taxiing) == 4  # two environments of two aircraft
+    terminated = trainer.buffer.terminated[: trainer.buffer.size]
+    assert set(np.unique(terminated)) <= {0.0, 1.0}
+    labels = trainer.buffer.labelled[: trainer.buffer.size]
+    assert labels.all()  # the tuned recipe: the prioritised planner labels every aircraft's step
+    trainer.close()
+
+
+@pytest.mark.slow
+def test_a_stopped_and_resumed_team_run_equals_an_unbroken_one(tmp_path):
+    whole = TeamTrainer(_team(), tmp_path / "whole", progress=False)
+    whole.train()
+    first = TeamTrainer(_team(), tmp_path / "broken", progress=False)
+    first.train(stop_at=90)
+    assert any(len(s.actions) > 0 for s in first.slots)  # stopped inside an episode
+    first.close()
+    resumed = TeamTrainer(_team(), tmp_path / "broken", resume=True, progress=False)
+    resumed.train()
+    assert_same_run(whole, resumed)
+    whole.close()
+    resumed.close()
+
+
+@pytest.mark.slow
+def test_the_shared_actor_records_its_regime_and_acts_for_every_aircraft(tmp_path):
+    cfg = _team(algo="ddpg", total_steps=80, demo_episodes=1, pretrain_updates=5,
+                eval_every=80, eval_episodes=1)
+    trainer = TeamTrainer(cfg, tmp_path / "run", progress=False)
+    out = trainer.train()
+    trainer.close()
+    assert out["demonstrations"]["transitions"] > 0
+    policy = LearnedPolicy.load(tmp_path / "run" / "actor.npz")
+    assert policy.meta["regime"] == "oracle-teacher" and policy.meta["scene"] == "deck1-multi"
+    assert "predicted" not in policy.meta["observation_keys"]  # DDPG: taught on the forecasts it does not see
+    env = deck_sim.load("deck1-multi", seed=3, agents__count=2, episode__predictor="none")
+    result = run_team_episode(env, SharedPolicy(policy, env))
+    assert len(result.aircraft) == 2
+    rows = (tmp_path / "run" / "eval.csv").read_text().splitlines()
+    assert rows[0].startswith("step,") and len(rows) >= 2
+
+
+def test_reward_regime_team_configs_name_their_regime():
+    assert _team(demo_episodes=0, expert_relabel=False, bc_weight=0.0, pretrain_updates=0).regime == "reward"
+    assert _team().regime == "oracle-teacher"
+
+
+@pytest.mark.parametrize(
+    ("fields", "kwargs", "named"),
+    [
+        ({"scene": "deck1", "scene_overrides": {}}, {}, "has one aircraft"),
+        ({"curriculum": ({"until": 0.5, "max_target_distance": 30.0, "movers": 1},)}, {}, "curriculum"),
+        ({"her_ratio": 0.5}, {}, "hindsight"),
+        ({"n_step": 3}, {}, "n-step"),
+        ({"teacher_view": "observation", "scene_overrides": {"agents__count": 2, "episode__static_size": True,
+                                                             "episode__mover_size": True,
+                                                             "episode__obstacle_shape": True}},
+         {}, "planner regime"),
+        ({}, {"backend": "ray"}, "--backend ray"),
+        ({}, {"workers": 1}, "--workers"),
+    ],
+)
+def test_what_several_aircraft_cannot_take_is_refused_by_name(tmp_path, fields, kwargs, named):
+    with pytest.raises(ConfigError, match=named):
+        TeamTrainer(_team(**fields), tmp_path / "run", progress=False, **kwargs)
+    assert not (tmp_path / "run").exists()  # nothing written
+
+
+def test_make_trainer_keeps_one_aircraft_on_the_single_agent_loop(tmp_path):
+    trainer = make_trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), tmp_path / "run",
+                           progress=False)
+    assert type(trainer) is Trainer
+    trainer.close()
