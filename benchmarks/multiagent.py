@@ -7,10 +7,11 @@ stream of docs/results.md), and measure every aircraft (``deck_sim.rollout.run_t
   plans of those before it as their future (the reference: the ceiling of what the scenes allow);
 - ``independent``: every aircraft its own ``ScriptedPlanner`` (whole body) on the same full view, the other
   aircraft predicted by the task's predictor like any mover, no plan shared;
-- ``shared:<policy>``: a single-agent policy of the scene's single-aircraft version (``shared:mddpg`` is the
-  shipped deck 1 or deck 2 MDDPG) acting for every aircraft on its own observation
-  (``deck_sim.policies.SharedPolicy``; an actor reads the nearest dynamic obstacles it was trained on), with the
-  scene fields the policy needs (its predictor and observation).
+- ``shared:<policy>``: a single-agent policy acting for every aircraft on its own observation
+  (``deck_sim.policies.team.make_team_policy``): ``shared:mddpg`` is the MDDPG shipped for the scene, or, where
+  none is, the single-aircraft deck 1 or deck 2 MDDPG (an actor reads the nearest dynamic obstacles it was trained
+  on); ``shared:<run>/actor.npz`` an actor file; each with the scene fields the policy needs (its predictor and
+  observation).
 
 Prints the machine, then per scene and policy: aircraft that reached their targets (Wilson 95 % interval), that
 collided (and with what kind of obstacle), that were still taxiing at the time limit, episodes in which every
@@ -33,59 +34,22 @@ import re  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
 
-import numpy as np  # noqa: E402
 from common import machine  # noqa: E402
 
 import deck_sim  # noqa: E402
-from deck_sim.control.planners import ScriptedPlanner  # noqa: E402
 from deck_sim.metrics import rate_interval, summarize_team  # noqa: E402
-from deck_sim.policies import PrioritisedPolicy, SharedPolicy, make_policy, policy_overrides  # noqa: E402
+from deck_sim.policies.team import TEAM_PLANNERS, make_team_policy, team_policy_overrides  # noqa: E402
 from deck_sim.rollout import run_team_episode  # noqa: E402
 
 HELD_OUT_SEED = 100000
 """Episode i is reset with this seed plus i (docs/results.md's held-out stream)."""
 
 
-class IndependentPolicy:
-    """Every aircraft plans alone: its own ``ScriptedPlanner`` (whole body) on its full view, no plan shared."""
-
-    def __init__(self, env) -> None:  # noqa: ANN001 - a composer environment
-        self._env = env
-        self._planners = [ScriptedPlanner(body=True) for _ in range(env.task.n_agents)]
-
-    def reset(self) -> None:
-        for planner in self._planners:
-            planner.reset()
-
-    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        task = self._env.task
-        out = np.zeros((task.n_agents, 2))
-        for i, a in enumerate(task.last_info["agents"]):
-            if not a["done"]:
-                out[i] = task.action_from_world(self._planners[i].act(task.planner_view(i)), i)
-        return out
-
-
-POLICIES = {"prioritised": PrioritisedPolicy, "independent": IndependentPolicy}
-
-
-def single_scene(scene: str) -> str:
-    """The single-aircraft scene a multi-aircraft scene is built on (``deck1-multi`` -> ``deck1``): where its
-    shipped single-agent policies come from."""
-    return scene.removesuffix("-multi")
-
-
 def make_team(name: str, scene: str, overrides: dict):  # noqa: ANN201 - (environment, team policy)
-    """The environment and the team policy ``name`` (a key of ``POLICIES`` or ``shared:<policy>``)."""
-    if name.startswith("shared:"):
-        single = name.split(":", 1)[1]
-        env = deck_sim.load(scene, seed=None, **{**policy_overrides(single, single_scene(scene)), **overrides})
-        base = deck_sim.load(single_scene(scene), seed=0, **policy_overrides(single, single_scene(scene)))
-        policy = make_policy(single, base)  # the policy of the single-aircraft scene
-        base.close()
-        return env, SharedPolicy(policy, env)
-    env = deck_sim.load(scene, seed=None, **overrides)
-    return env, POLICIES[name](env)
+    """The environment and the team policy ``name`` (``prioritised``, ``independent`` or ``shared:<policy>``)."""
+    single = name.split(":", 1)[1] if name.startswith("shared:") else name
+    env = deck_sim.load(scene, seed=None, **{**team_policy_overrides(single, scene), **overrides})
+    return env, make_team_policy(single, env)
 
 
 def kind(name: str) -> str:
@@ -102,9 +66,9 @@ def main() -> None:
     parser.add_argument("--agents", type=int, default=None, help="aircraft per episode (default: the scene's)")
     parser.add_argument("--predictor", default=None, help="the task's predictor (default: the scene's)")
     args = parser.parse_args()
-    unknown = sorted(p for p in args.policies.split(",") if p not in POLICIES and not p.startswith("shared:"))
+    unknown = sorted(p for p in args.policies.split(",") if p not in TEAM_PLANNERS and not p.startswith("shared:"))
     if unknown:
-        parser.error(f"unknown policies {unknown}; known: {', '.join(POLICIES)}, shared:<policy>")
+        parser.error(f"unknown policies {unknown}; known: {', '.join(TEAM_PLANNERS)}, shared:<policy>")
     overrides = {}
     if args.agents is not None:
         overrides["agents__count"] = args.agents

@@ -249,8 +249,6 @@ def test_a_shipped_single_agent_actor_acts_for_every_aircraft_on_its_nearest_mov
 @pytest.mark.parametrize(
     "argv",
     [
-        ["run", "--scene", "deck1-multi", "--policy", "zero", "--episodes", "1", "--no-record"],
-        ["run", "--scene", "deck1", "--scene-set", "agents.count=2", "--policy", "zero", "--no-record"],
         ["eval", "--agents", "zero", "--scenes", "deck1,deck2-multi", "--episodes", "1"],
         ["render", "--scene", "deck2-multi", "--policy", "zero", "--out", "never.mp4"],
     ],
@@ -262,6 +260,59 @@ def test_the_one_aircraft_commands_refuse_a_multi_aircraft_scene_by_name(argv, c
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "aircraft" in err and ("multi" in err or "several" in err)
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_deck_sim_run_acts_for_every_aircraft_and_tables_aircraft_and_teams(tmp_path, capsys):
+    import csv
+    import json
+
+    from deck_sim.cli import main
+
+    out = tmp_path / "run"
+    argv = ["run", "--scene", "deck1", "--scene-set", "agents.count=2", "--policy", "prioritised", "--episodes", "2",
+            "--seed", "5", "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "episodes all arrived" in printed and "aircraft-aircraft collisions / episode" in printed
+    with open(out / "episodes.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["aircraft"], r["episode"]) for r in rows] == [
+        ("aircraft_0", "0"), ("aircraft_1", "0"), ("aircraft_0", "1"), ("aircraft_1", "1")
+    ]
+    summary = json.loads((out / "summary.json").read_text())["summary"]
+    assert summary["aircraft"] == 4 and summary["episodes"] == 2
+    assert summary["goal_rate"] == sum(r["outcome"] == "goal" for r in rows) / 4
+    episodes = {r["episode"] for r in rows}
+    all_in = sum(all(r["outcome"] == "goal" for r in rows if r["episode"] == e) for e in episodes)
+    assert summary["all_reached_rate"] == all_in / 2
+    # the same episodes again: the same table
+    assert main([*argv[:-3], "--out", str(tmp_path / "again"), "--quiet"]) == 0
+    assert (tmp_path / "again" / "episodes.csv").read_text() == (out / "episodes.csv").read_text()
+
+
+def test_a_shared_learned_policy_says_where_its_actor_was_trained(tmp_path, capsys):
+    from deck_sim.cli import main
+
+    argv = ["run", "--scene", "deck1", "--scene-set", "agents.count=2", "--policy", "mddpg", "--episodes", "1",
+            "--out", str(tmp_path / "run"), "--quiet"]
+    assert main(argv) == 0
+    assert "an actor trained on deck1, acting for every aircraft" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--policy", "scripted"], "prioritised, independent"),
+        (["--policy", "prioritised", "--record", "x.mcap"], "no episode log"),
+    ],
+)
+def test_deck_sim_run_refuses_what_several_aircraft_cannot_take(extra, named, tmp_path, capsys, monkeypatch):
+    from deck_sim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--scene", "deck1-multi", "--episodes", "1", *extra]) == 2
+    assert named in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing written
 
 

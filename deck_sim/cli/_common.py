@@ -94,8 +94,8 @@ def refuse_multi_agent(command: str, scene: str, **overrides: object) -> None:
     spec = load_scene(scene, **overrides)
     if spec.multi_agent:
         raise ValueError(
-            f"scene {spec.name!r} has {spec.agents.count} aircraft; deck-sim {command} acts for one. Run a "
-            "multi-aircraft scene from Python (deck_sim.multiagent.parallel_env, deck_sim.policies.SharedPolicy) or "
-            "with benchmarks/multiagent.py"
+            f"scene {spec.name!r} has {spec.agents.count} aircraft; deck-sim {command} acts for one. Play a "
+            "multi-aircraft scene with deck-sim run, from Python (deck_sim.multiagent.parallel_env, "
+            "deck_sim.policies.make_team_policy) or with benchmarks/multiagent.py"
         )
 

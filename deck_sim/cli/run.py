@@ -13,11 +13,11 @@ from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from deck_sim.cli._common import add_command, policy_label, refuse_multi_agent, scene_overrides
+from deck_sim.cli._common import add_command, fmt, policy_label, scene_overrides
 from deck_sim.progress import progress
 
 if TYPE_CHECKING:
-    from deck_sim.metrics import EpisodeResult
+    from deck_sim.metrics import EpisodeResult, TeamEpisodeResult
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
@@ -81,18 +81,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         return INTERRUPTED
 
 
-def _play(args: argparse.Namespace) -> int:
-    """``cmd_run`` but for a Ctrl-C outside the episodes."""
-    import deck_sim
-    from deck_sim.metrics import summarize
-    from deck_sim.policies import make_policy, policy_overrides
-    from deck_sim.policies.regimes import actor_regime, regime_text
-    from deck_sim.rollout import run_episode
-
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
-    refuse_multi_agent("run", args.scene, **scene_overrides(args.scene_set))
-    overrides = policy_overrides(args.policy, Path(args.scene).stem)
+def _run_overrides(
+    args: argparse.Namespace, overrides: dict[str, object]
+) -> tuple[dict[str, object], dict[str, object]]:
+    """The scene fields of the run: the policy's ``overrides``, ``--predictor``, then ``--scene-set`` (which may
+    not contradict the other two); and the ``--scene-set`` fields alone."""
+    overrides = dict(overrides)
     if args.predictor:
         overrides["episode__predictor"] = args.predictor
     scene_set = scene_overrides(args.scene_set)
@@ -104,13 +98,34 @@ def _play(args: argparse.Namespace) -> int:
                 f"--scene-set {key.replace('__', '.')}={value!r} contradicts {given}, which needs {overrides[key]!r}"
             )
     overrides.update(scene_set)
+    return overrides, scene_set
+
+
+def _out_folder(args: argparse.Namespace, scene_set: dict[str, object]) -> Path:
+    """``--out``, or ``runs/<scene>-<policy>-seed<seed>`` with a variant's ``--scene-set`` fields in the name."""
+    variant = "".join(f"-{k.split('__', 1)[1]}={v}" for k, v in scene_set.items())
+    default_out = Path("runs") / f"{args.scene}-{policy_label(args.policy)}-seed{args.seed}{variant}"
+    return Path(args.out) if args.out else default_out
+
+
+def _play(args: argparse.Namespace) -> int:
+    """``cmd_run`` but for a Ctrl-C outside the episodes."""
+    import deck_sim
+    from deck_sim.metrics import summarize
+    from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.policies.regimes import actor_regime, regime_text
+    from deck_sim.rollout import run_episode
+    from deck_sim.scenes import load_scene
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
+    if load_scene(args.scene, **scene_overrides(args.scene_set)).multi_agent:
+        return _play_team(args)
+    overrides, scene_set = _run_overrides(args, policy_overrides(args.policy, Path(args.scene).stem))
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
     policy = make_policy(args.policy, env, seed=args.seed)
-    # a variant of the scene gets its own default folder (its fields in the name), not the plain scene's
-    variant = "".join(f"-{k.split('__', 1)[1]}={v}" for k, v in scene_set.items())
-    default_out = Path("runs") / f"{args.scene}-{policy_label(args.policy)}-seed{args.seed}{variant}"
-    out = Path(args.out) if args.out else default_out
+    out = _out_folder(args, scene_set)
     results = []
     stopped = False
     t0 = time.perf_counter()
@@ -179,6 +194,105 @@ def _play(args: argparse.Namespace) -> int:
     return 0
 
 
+def format_team_summary(name: str, policy: str, predictor: str, summary: dict[str, float], wall: float) -> str:
+    """The metrics of a run of several aircraft (``summarize`` over every aircraft, with ``summarize_team``'s team
+    figures and the ``reached_low``/``reached_high`` interval) as a two-column Markdown table."""
+    rows = [
+        ("episodes", f"{summary['episodes']:.0f}"),
+        ("aircraft", f"{summary['aircraft']:.0f}"),
+        ("aircraft reached", f"{100 * summary['goal_rate']:.1f} %"),
+        ("95 % interval", f"{100 * summary['reached_low']:.1f}-{100 * summary['reached_high']:.1f} %"),
+        ("aircraft collided", f"{100 * summary['collision_rate']:.1f} %"),
+        ("aircraft still taxiing", f"{100 * summary['timeout_rate']:.1f} %"),
+        ("left the surface", f"{100 * summary['off_surface_rate']:.1f} %"),
+        ("physics diverged", f"{100 * summary['diverged_rate']:.1f} %"),
+        ("episodes all arrived", f"{100 * summary['all_reached_rate']:.1f} %"),
+        ("makespan (all arrived)", f"{fmt(summary['makespan'], '.1f')} s"),
+        ("aircraft-aircraft collisions / episode", f"{summary['aircraft_collisions_per_episode']:.2f}"),
+        ("path sum / shortest sum", fmt(summary["path_sum_ratio"], ".3f")),
+        ("turning angle (arrivals)", f"{fmt(summary['turning_angle_deg'], '.1f')} deg"),
+        ("mean reward per aircraft", f"{summary['mean_reward']:.1f}"),
+        ("wall time", f"{wall:.1f} s"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    head = f"| {'scene ' + name + ', policy ' + policy + ', predictor ' + predictor:<{width + 14}} |"
+    lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
+    lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
+    return "\n".join(lines)
+
+
+def _play_team(args: argparse.Namespace) -> int:
+    """``_play`` for a scene of several aircraft: one team policy (``make_team_policy``) acts for all; the
+    tables count aircraft and episodes in which every one arrived. No episode log is written
+    (``--record`` is refused)."""
+    import deck_sim
+    from deck_sim.metrics import rate_interval, summarize, summarize_team
+    from deck_sim.policies import make_team_policy, team_policy_overrides
+    from deck_sim.policies.regimes import actor_regime, regime_text
+    from deck_sim.rollout import run_team_episode
+
+    if args.record:
+        raise ValueError(f"--record: deck-sim run writes no episode log of a scene of several aircraft "
+                         f"({args.scene}); drop --record")
+    overrides, scene_set = _run_overrides(args, team_policy_overrides(args.policy, Path(args.scene).stem))
+    env = deck_sim.load(args.scene, seed=args.seed, **overrides)
+    predictor = env.task.predictor.name
+    policy = make_team_policy(args.policy, env, seed=args.seed)
+    out = _out_folder(args, scene_set)
+    results: list[TeamEpisodeResult] = []
+    stopped = False
+    t0 = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder", team=True))
+        bar = stack.enter_context(
+            progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
+        )
+        try:
+            for k in bar:
+                results.append(run_team_episode(env, policy, episode=k))
+                table.write(results)
+                aircraft = [r for team in results for r in team.aircraft]
+                reached = sum(r.outcome == "goal" for r in aircraft)
+                bar.set_postfix(reached=f"{100 * reached / len(aircraft):.0f}%")
+        except KeyboardInterrupt:
+            stopped = True
+        table.write(results)
+    wall = time.perf_counter() - t0
+    if not results:
+        print(f"deck-sim run: stopped (Ctrl-C) before the first episode finished; {out / 'episodes.csv'} holds only "
+              "its header", file=sys.stderr)
+        return INTERRUPTED
+    aircraft = [r for team in results for r in team.aircraft]
+    low, high = rate_interval(sum(r.outcome == "goal" for r in aircraft), len(aircraft))
+    summary = {**summarize(aircraft), **summarize_team(results), "reached_low": low, "reached_high": high}
+    table_text = format_team_summary(args.scene, args.policy, predictor, summary, wall)
+    shared = getattr(policy, "policy", None)
+    meta_record = getattr(shared, "meta", None)
+    regime = actor_regime(meta_record) if isinstance(meta_record, dict) else None
+    if meta_record is not None:  # a learned actor shared by every aircraft: say what it learnt from, and where
+        trained = meta_record.get("scene", "?")
+        table_text = (f"{args.policy} (an actor trained on {trained}, acting for every aircraft) learnt from "
+                      f"{regime_text(regime)}\n\n{table_text}")
+    print(table_text)
+    meta = {
+        "scene": args.scene, "policy": args.policy, "predictor": predictor, "regime": regime, "seed": args.seed,
+        "episodes": args.episodes, "scene_set": scene_set, "deck_sim": deck_sim.__version__, "summary": summary,
+        "wall_s": wall,
+    }
+    note = ""
+    if stopped:
+        meta.update(stopped=True, episodes_finished=len(results))
+        note = f"\nStopped by Ctrl-C after {len(results)} of {args.episodes} episodes: the table covers those.\n"
+    (out / "summary.json").write_text(json.dumps(meta, indent=2))
+    (out / "results.md").write_text(table_text + "\n" + note)
+    print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'} (one row per aircraft)")
+    if stopped:
+        print(f"deck-sim run: stopped (Ctrl-C) after {len(results)} of {args.episodes} episodes; their results are "
+              f"written to {out} (summary.json marked stopped)", file=sys.stderr)
+        return INTERRUPTED
+    return 0
+
+
 class _EpisodeTable:
     """``episodes.csv`` of a run, one row per episode written (and flushed) as the episode ends.
 
@@ -186,7 +300,7 @@ class _EpisodeTable:
     ``summary.json`` and ``results.md`` of an earlier run in that folder, which would not describe this one.
     """
 
-    def __init__(self, out: Path, label: str) -> None:
+    def __init__(self, out: Path, label: str, team: bool = False) -> None:
         from deck_sim.metrics import EpisodeResult
 
         if out.exists() and not out.is_dir():
@@ -198,15 +312,23 @@ class _EpisodeTable:
                 (out / name).unlink(missing_ok=True)
         except OSError as err:
             raise ValueError(f"{label} {out}: cannot write the run's files there ({err.strerror or err})") from None
-        self._writer = csv.DictWriter(self._file, fieldnames=[f.name for f in fields(EpisodeResult)])
+        names = [f.name for f in fields(EpisodeResult)]
+        self._writer = csv.DictWriter(self._file, fieldnames=["aircraft", *names] if team else names)
         self._writer.writeheader()
         self._file.flush()
         self._written = 0
 
-    def write(self, results: Sequence[EpisodeResult]) -> None:
-        """Append the rows of ``results`` not yet written, and flush them to the disk."""
+    def write(self, results: Sequence[EpisodeResult | TeamEpisodeResult]) -> None:
+        """Append the rows of ``results`` not yet written (one per aircraft of an episode of several, its name
+        first), and flush them to the disk."""
+        from deck_sim.metrics import TeamEpisodeResult
+
         for r in results[self._written :]:
-            self._writer.writerow(r.as_dict())
+            if isinstance(r, TeamEpisodeResult):
+                for i, aircraft in enumerate(r.aircraft):
+                    self._writer.writerow({"aircraft": f"aircraft_{i}", **aircraft.as_dict()})
+            else:
+                self._writer.writerow(r.as_dict())
             self._written += 1
         self._file.flush()
 

@@ -3,22 +3,26 @@
 A team policy maps the composer observation of every aircraft (keys ``aircraft_i:<key>``) to one action per
 aircraft, an array (k, 2) in the task's action frame; the action of an aircraft that is done is not read.
 ``PrioritisedPolicy`` is the full-knowledge reference: prioritised planning over the task's ``planner_view`` of
-every aircraft (``control.planners.PrioritisedPlanner``). ``SharedPolicy`` runs one single-agent policy (a
-learned actor, say) for every aircraft on its own observation; an actor trained on n dynamic obstacles reads the
-n nearest of the n + k - 1 an aircraft observes (``nearest_dynamic``, the documented adapter).
+every aircraft (``control.planners.PrioritisedPlanner``); ``IndependentPolicy`` lets every aircraft plan alone.
+``SharedPolicy`` runs one single-agent policy (a learned actor, say) for every aircraft on its own observation; an
+actor trained on n dynamic obstacles reads the n nearest of the n + k - 1 an aircraft observes (``nearest_dynamic``,
+the documented adapter). ``make_team_policy`` builds any of them by name, as ``deck-sim run`` does for a
+multi-aircraft scene.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from dm_control import composer
 
-from deck_sim.control.planners import PrioritisedPlanner
-from deck_sim.policies.actors import OBSTACLE_SETS
+from deck_sim import agents
+from deck_sim.control.planners import PrioritisedPlanner, ScriptedPlanner
+from deck_sim.policies.actors import OBSTACLE_SETS, load_actor
 from deck_sim.policies.reference import Policy
+from deck_sim.policies.registry import TRAINED_DIR, make_policy, policy_file, policy_overrides
 
 
 class TeamPolicy(Protocol):
@@ -62,6 +66,37 @@ class PrioritisedPolicy:
         return np.array(
             [np.zeros(2) if a is None else task.action_from_world(a, i) for i, a in enumerate(actions)]
         )
+
+
+class IndependentPolicy:
+    """Every aircraft plans alone: its own full-knowledge ``ScriptedPlanner`` (whole body) on its
+    ``MultiNavigate.planner_view``, the other aircraft predicted by the task's predictor like any mover, no plan
+    shared (what prioritised planning adds is the shared plans).
+
+    Args:
+        env: a composer environment of a multi-aircraft scene.
+    """
+
+    def __init__(self, env: composer.Environment) -> None:
+        task = env.task
+        if not task.spec.multi_agent:
+            raise ValueError(f"scene {task.spec.name!r} has one agent: IndependentPolicy plans for several")
+        self._env = env
+        self._planners = [ScriptedPlanner(body=True) for _ in range(task.n_agents)]
+
+    def reset(self) -> None:
+        """Forget the previous episode."""
+        for planner in self._planners:
+            planner.reset()
+
+    def act(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        """Every aircraft's action (k, 2) in the task's action frame; zeros for an aircraft that is done."""
+        task = self._env.task
+        out = np.zeros((task.n_agents, 2))
+        for i, a in enumerate(task.last_info["agents"]):
+            if not a["done"]:
+                out[i] = task.action_from_world(self._planners[i].act(task.planner_view(i)), i)
+        return out
 
 
 def nearest_dynamic(observation: Mapping[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
@@ -114,3 +149,54 @@ class SharedPolicy:
             out[i] = self.policy.act(own)
         return out
 
+
+TEAM_PLANNERS = {"prioritised": PrioritisedPolicy, "independent": IndependentPolicy}
+"""The full-knowledge planners of several aircraft, by name."""
+
+
+def single_scene(scene: str) -> str:
+    """The single-aircraft scene a shipped multi-aircraft scene is built on (``deck1-multi`` -> ``deck1``)."""
+    return scene.removesuffix("-multi")
+
+
+def shared_actor_scene(name: str, scene: str) -> str:
+    """The scene whose shipped actor a shipped policy name (``mddpg`` ...) means on the multi-aircraft ``scene``: the
+    scene's own actor where one is shipped (trained for several aircraft, ``deck_sim/trained/<scene>_<name>.npz``),
+    else the single-aircraft actor of the scene it is built on (``single_scene``), shared."""
+    return scene if (TRAINED_DIR / f"{scene}_{name}.npz").exists() else single_scene(scene)
+
+
+def team_policy_overrides(name: str, scene: str) -> dict[str, Any]:
+    """The scene fields team policy ``name`` runs with on the multi-aircraft ``scene`` (``make_team_policy``): none
+    for the planners, a shared policy's own (``policy_overrides``: a learned actor's predictor and observation)."""
+    if name in TEAM_PLANNERS:
+        return {}
+    if name in (*agents.ORACLES, *agents.CLASSICAL, *agents.OBSERVERS):
+        raise _not_a_team_policy(name, scene)
+    return policy_overrides(name, shared_actor_scene(name, scene))
+
+
+def _not_a_team_policy(name: str, scene: str) -> ValueError:
+    return ValueError(
+        f"policy {name!r} cannot act for the aircraft of scene {scene!r}, which has several: expected "
+        f"{', '.join(TEAM_PLANNERS)} (full-knowledge planners of several aircraft), a learned policy "
+        f"({', '.join(agents.LEARNED)}) or an actor .npz file shared by every aircraft, random or zero (the "
+        "single-aircraft planners read one aircraft's task state)"
+    )
+
+
+def make_team_policy(name: str, env: composer.Environment, seed: int = 0) -> TeamPolicy:
+    """The team policy called ``name`` for a multi-aircraft ``env``: a planner of ``TEAM_PLANNERS``
+    (``prioritised``, ``independent``), or a single-agent policy that reads the observation acting for every aircraft
+    (``SharedPolicy``): a shipped learned name (``shared_actor_scene`` says which file), an actor ``.npz`` file,
+    ``random`` or ``zero``. ``ValueError`` naming the choices for anything else (the single-aircraft planners
+    read one aircraft's task state)."""
+    if name in TEAM_PLANNERS:
+        return TEAM_PLANNERS[name](env)
+    scene = env.task.spec.name
+    path = policy_file(name, shared_actor_scene(name, scene))
+    if path is not None:
+        return SharedPolicy(load_actor(path), env)
+    if name in ("random", "zero"):
+        return SharedPolicy(make_policy(name, env, seed=seed), env)
+    raise _not_a_team_policy(name, scene)
