@@ -21,7 +21,7 @@ from deck_sim.entities import Pedestrian
 from deck_sim.environment import make_environment
 from deck_sim.recording import EpisodeLog, LogError, LoggedEpisode
 from deck_sim.scenes import SceneSpecError, parse_scene
-from deck_sim.types import SceneFrame, StepFrame
+from deck_sim.types import SceneFrame, StepFrame, TeamStepFrame
 
 _PATH_RGBA = np.array([0.85, 0.15, 0.1, 1.0], dtype=np.float32)
 _PREDICTION_RGBA = np.array([0.2, 0.6, 1.0, 1.0], dtype=np.float32)
@@ -91,13 +91,20 @@ def replay_environment(log: EpisodeLog) -> composer.Environment:
     return env
 
 
-def pose_bodies(env: composer.Environment, scene: SceneFrame, step: StepFrame) -> None:
-    """Place the agent, movers, static obstacles and target of ``env`` as logged, then update the kinematics."""
+def pose_bodies(env: composer.Environment, scene: SceneFrame, step: StepFrame | TeamStepFrame) -> None:
+    """Place the aircraft, movers, static obstacles and targets of ``env`` as logged, then update the kinematics."""
     task, physics = env.task, env.physics
     names = tuple(m.mjcf_model.model for m in task.movers)
     if names != scene.mover_names:
         raise LogError(f"the log's movers {scene.mover_names} are not the scene's {names}")
-    for entity, pose in ((task.agent, step.agent_pose), *zip(task.movers, step.mover_poses, strict=True)):
+    if isinstance(step, TeamStepFrame):
+        if tuple(task.agent_names) != scene.agent_names:
+            raise LogError(f"the log's aircraft {scene.agent_names} are not the scene's {tuple(task.agent_names)}")
+        aircraft = list(zip(task.agents, (a.pose for a in step.aircraft), strict=True))
+        targets = [(f"target_{i}", xy) for i, xy in enumerate(scene.targets_xy)]
+    else:
+        aircraft, targets = [(task.agent, step.agent_pose)], [("target", scene.target_xy)]
+    for entity, pose in (*aircraft, *zip(task.movers, step.mover_poses, strict=True)):
         if isinstance(entity, Pedestrian):  # slide joints in the attachment frame
             frame = physics.bind(mjcf.get_attachment_frame(entity.mjcf_model))
             physics.bind(list(entity.joints)).qpos = pose[:2] - frame.pos[:2]
@@ -105,7 +112,8 @@ def pose_bodies(env: composer.Environment, scene: SceneFrame, step: StepFrame) -
             entity.set_pose(physics, position=pose[:3], quaternion=pose[3:7])
     for prop, (x, y, yaw) in zip(task.statics, scene.static_poses, strict=False):
         prop.set_pose(physics, np.array([x, y, 0.0]), np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))
-    physics.bind(task.root_entity.mjcf_model.find("body", "target")).pos = [*scene.target_xy, 0.0]
+    for name, xy in targets:
+        physics.bind(task.root_entity.mjcf_model.find("body", name)).pos = [*xy, 0.0]
     physics.forward()
 
 
@@ -118,6 +126,15 @@ def _segments(scn: mujoco.MjvScene, points: np.ndarray, width: float, rgba: np.n
         geom = scn.geoms[scn.ngeom - 1]
         mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.zeros(9), rgba)
         mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, width, a, b)
+
+
+def _tracks(s: StepFrame | TeamStepFrame) -> tuple[list[np.ndarray], list[bool], np.ndarray]:
+    """Where each aircraft's path stands at step ``s`` and whether the aircraft is done, and where each predicted
+    vehicle stands (movers, then aircraft; NaN for an aircraft that is done: its forecast is not drawn)."""
+    if isinstance(s, TeamStepFrame):
+        aircraft = np.array([np.full(2, np.nan) if a.done else a.pose[:2] for a in s.aircraft])
+        return [a.track_xy for a in s.aircraft], [a.done for a in s.aircraft], np.vstack([s.mover_xy, aircraft])
+    return [s.agent_xy], [False], s.mover_xy
 
 
 def render_episode(
@@ -156,7 +173,8 @@ def render_episode(
     check_count("height", height, MIN_FRAME)
     check_speedup("speedup", speedup)
     check_count("max_steps", max_steps)
-    steps = episode.steps if max_steps is None else episode.steps[: max_steps + 1]
+    logged = episode.team_steps if episode.team else episode.steps
+    steps = logged if max_steps is None else logged[: max_steps + 1]
     if not steps:
         raise LogError(f"episode {episode.index} holds no steps to render")
     width = max(16, int(round(width / 16)) * 16)
@@ -166,15 +184,25 @@ def render_episode(
     check_view(env.physics, camera, {"a frame": (width, height)})
     z = 0.6
     frames = []
-    path: list[np.ndarray] = []
+    paths: list[list[np.ndarray]] = [[] for _ in _tracks(steps[0])[0]]
+    ended = [False] * len(paths)
     for s in steps:
         pose_bodies(env, episode.scene, s)
-        path.append(np.array([*s.agent_xy, z]))
+        tracks, done, now = _tracks(s)
+        for i, xy in enumerate(tracks):
+            if not ended[i]:  # a path ends where its aircraft was done
+                paths[i].append(np.array([*xy, z]))
+            ended[i] = done[i]
 
-        def draw(physics: object, scn: mujoco.MjvScene, s: StepFrame = s) -> None:
-            _segments(scn, np.array(path), 0.35, _PATH_RGBA)
+        def draw(
+            physics: object, scn: mujoco.MjvScene, s: StepFrame | TeamStepFrame = s, now: np.ndarray = now
+        ) -> None:
+            for path in paths:
+                _segments(scn, np.array(path), 0.35, _PATH_RGBA)
             for i in range(s.prediction.shape[0]):
-                line = np.vstack([s.mover_xy[i][None], s.prediction[i]])
+                if np.isnan(now[i, 0]):
+                    continue
+                line = np.vstack([now[i][None], s.prediction[i]])
                 _segments(scn, np.column_stack([line, np.full(len(line), z)]), 0.25, _PREDICTION_RGBA)
 
         text = TextOverlay(

@@ -12,7 +12,7 @@ import json
 import os
 import subprocess
 import weakref
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,7 @@ from deck_sim.policies import Policy
 from deck_sim.policies.team import TeamPolicy
 from deck_sim.recording import DEFAULT_CHUNK_SIZE, Attachment, EpisodeRecorder
 from deck_sim.scenes import dump_scene
-from deck_sim.types import SceneFrame, StepFrame
+from deck_sim.types import AircraftStep, SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
 
 StepCallback = Callable[[composer.Environment, object, np.ndarray | None], None]
 
@@ -55,13 +55,14 @@ class TaskFrames:
         physics = self._env.physics
         if self._model_ptr is not physics.model.ptr:  # compiled anew: look the bodies up again
             task = self._env.task
-            bodies = [task.agent.root_body, *(m.root_body for m in task.movers)]
+            aircraft = task.agents if task.spec.multi_agent else [task.agent]
+            bodies = [*(a.root_body for a in aircraft), *(m.root_body for m in task.movers)]
             self._body_ids = np.array([physics.bind(b).element_id for b in bodies], dtype=int)
             self._model_ptr = physics.model.ptr
         return self._body_ids
 
     def scene(self, episode: int) -> SceneFrame:
-        """What stays fixed in the episode that has just been reset."""
+        """What stays fixed in the episode that has just been reset (a ``TeamSceneFrame`` for several aircraft)."""
         task = self._env.task
         view = task.planner_view()
         layout = task.layout
@@ -74,7 +75,11 @@ class TaskFrames:
         )
         center, half, radius = task.agent.footprint
         movers = task.movers
-        return SceneFrame(
+        team = {}
+        if task.spec.multi_agent:
+            team = {"agent_names": tuple(task.agent_names), "targets_xy": np.array(layout.targets_xy, dtype=np.float64)}
+        return (TeamSceneFrame if team else SceneFrame)(
+            **team,
             scene=task.spec.name,
             episode=int(episode),
             dt=float(task.spec.episode.control_period),
@@ -123,6 +128,51 @@ class TaskFrames:
             diverged=bool(info["diverged"]),
             last=bool(ts.last()),
             discount=None if ts.discount is None else float(ts.discount),
+        )
+
+
+    def team_step(
+        self, ts: Any, actions: np.ndarray | None, episode: int, step: int, acted: Sequence[bool] | None = None
+    ) -> TeamStepFrame:
+        """The state of several aircraft after the reset (``step`` 0, ``actions`` None) or after a control step in
+        which the aircraft marked in ``acted`` were taxiing (their rows of ``actions`` were read)."""
+        info = self._env.task.last_info
+        data = self._env.physics.data
+        ids = self._ids()
+        z, quat = data.xpos[ids, 2], data.xquat[ids]
+        agents = info["agents"]
+        k = len(agents)
+        aircraft = []
+        for i, a in enumerate(agents):
+            act = None if actions is None or acted is None or not acted[i] else np.array(actions[i], dtype=np.float64)
+            aircraft.append(
+                AircraftStep(
+                    name=a["name"],
+                    action=act,
+                    pose=np.concatenate([a["position"], z[i : i + 1], quat[i]]),
+                    heading=float(a["heading"]),
+                    speed=float(a["speed"]),
+                    track_xy=np.array(a["done_position"] if a["done"] else a["position"], dtype=np.float64),
+                    reward_terms={key: float(v) for key, v in a["reward_terms"].items()},
+                    distance_to_goal=float(a["distance_to_goal"]),
+                    min_clearance=float(a["min_clearance"]),
+                    collision=a["collision"],
+                    reached_goal=bool(a["reached_goal"]),
+                    left_surface=bool(a["left_surface"]),
+                    done=bool(a["done"]),
+                    discount=None if ts.discount is None else float(np.asarray(ts.discount)[i]),
+                )
+            )
+        return TeamStepFrame(
+            episode=int(episode),
+            step=int(step),
+            time=float(info["time"]),
+            aircraft=tuple(aircraft),
+            mover_poses=np.column_stack([info["mover_positions"], z[k:], quat[k:]]).reshape(-1, 7),
+            prediction=np.array(info["prediction"], dtype=np.float64),
+            predictor_fallbacks=int(info["predictor_fallbacks"]),
+            diverged=bool(info["diverged"]),
+            last=bool(ts.last()),
         )
 
 
@@ -201,6 +251,7 @@ def run_team_episode(
     policy: TeamPolicy,
     episode: int = 0,
     on_step: StepCallback | None = None,
+    recorder: EpisodeRecorder | None = None,
 ) -> TeamEpisodeResult:
     """Play one episode of a multi-aircraft scene from ``env.reset()`` to its end and measure every aircraft.
 
@@ -209,10 +260,14 @@ def run_team_episode(
 
     Args:
         on_step: called after the reset and after every step with (env, timestep, actions or None).
+        recorder: writes the episode (its scene, every aircraft at every step, the events) to an episode log.
     """
     ts = env.reset()
     policy.reset()
     task = env.task
+    frames = task_frames(env) if recorder is not None else None
+    if frames is not None:
+        recorder.begin_team_episode(frames.scene(episode), frames.team_step(ts, None, episode, 0))
     k = task.n_agents
     agents = task.last_info["agents"]
     tracks = [[a["position"].copy()] for a in agents]
@@ -233,6 +288,8 @@ def run_team_episode(
             if live[i]:
                 tracks[i].append((a["done_position"] if a["done"] else a["position"]).copy())
                 min_clear[i] = min(min_clear[i], a["min_clearance"])
+        if frames is not None:
+            recorder.record_team_step(frames.team_step(ts, actions, episode, steps, live))
         if on_step is not None:
             on_step(env, ts, actions)
     info = task.last_info

@@ -210,3 +210,89 @@ class StepFrame:
     def mover_xy(self) -> np.ndarray:
         """(n, 2) the movers' positions."""
         return self.mover_poses[:, :2]
+
+
+@dataclass(frozen=True)
+class TeamSceneFrame(SceneFrame):
+    """What stays fixed during one episode of several aircraft (``deck_sim.tasks.multi``), as a log records it.
+
+    The fields of ``SceneFrame`` (``target_xy`` is the first aircraft's target; every aircraft has
+    ``agent_footprint``, ``agent_radius`` and ``goal_radius``), and:
+
+    Attributes:
+        agent_names: The aircraft's names, ``aircraft_0`` ... (their frames and topics in the log).
+        targets_xy: (k, 2) every aircraft's target, in ``agent_names`` order.
+    """
+
+    agent_names: tuple[str, ...] = ()
+    targets_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+@dataclass(frozen=True)
+class AircraftStep:
+    """One aircraft's part of a ``TeamStepFrame`` (units as ``StepFrame``'s).
+
+    Attributes:
+        name: The aircraft's name.
+        action: (2,) its action that led to this step; ``None`` at step 0 and once it is done.
+        pose: (7,) its body: x, y, z, then the orientation quaternion w, x, y, z.
+        heading: Its yaw.
+        speed: Its forward speed.
+        track_xy: (2,) where its path stands: its position while it taxis, where it was done (``done_position``)
+            from the step it was done on (its body then waits on the apron beyond the stern).
+        reward_terms: r1 ... r4 and ``total`` of this step (zeros once it is done).
+        distance_to_goal: Distance from it to its target (at the step it was done, from then on).
+        min_clearance: Clearance from its disc to the nearest obstacle (likewise).
+        collision: What it touched, if it collided.
+        reached_goal: It reached its target.
+        left_surface: It left the surface.
+        done: It is done (at this step or before).
+        discount: 0 once it is done, 1 otherwise (``None`` at step 0).
+    """
+
+    name: str
+    action: np.ndarray | None
+    pose: np.ndarray
+    heading: float
+    speed: float
+    track_xy: np.ndarray
+    reward_terms: dict[str, float]
+    distance_to_goal: float
+    min_clearance: float
+    collision: str | None
+    reached_goal: bool
+    left_surface: bool
+    done: bool
+    discount: float | None
+
+
+@dataclass(frozen=True)
+class TeamStepFrame:
+    """The state of one control step of several aircraft, as an episode log records it.
+
+    Attributes:
+        episode: Index of the episode in its run.
+        step: Control steps since the reset.
+        time: Simulated time, s.
+        aircraft: Every aircraft's part, in ``TeamSceneFrame.agent_names`` order.
+        mover_poses: (n, 7) every mover's body pose.
+        prediction: (n + k, N, 2) the predictor's positions of every mover, then of every aircraft.
+        predictor_fallbacks: Rows whose prediction fell back to constant velocity at this step.
+        diverged: The physics diverged.
+        last: The episode ended at this step.
+    """
+
+    episode: int
+    step: int
+    time: float
+    aircraft: tuple[AircraftStep, ...]
+    mover_poses: np.ndarray
+    prediction: np.ndarray
+    predictor_fallbacks: int
+    diverged: bool
+    last: bool
+
+    @property
+    def mover_xy(self) -> np.ndarray:
+        """(n, 2) the movers' positions."""
+        return self.mover_poses[:, :2]

@@ -304,7 +304,7 @@ def test_a_shared_learned_policy_says_where_its_actor_was_trained(tmp_path, caps
     ("extra", "named"),
     [
         (["--policy", "scripted"], "prioritised, independent"),
-        (["--policy", "prioritised", "--record", "x.mcap"], "no episode log"),
+        (["--policy", "nope"], "cannot act for the aircraft of scene 'deck1-multi'"),
     ],
 )
 def test_deck_sim_run_refuses_what_several_aircraft_cannot_take(extra, named, tmp_path, capsys, monkeypatch):

@@ -32,8 +32,9 @@ def cmd_log_info(args: argparse.Namespace) -> int:
     if log.summary_damage:
         print(f"summary   damaged at {log.summary_damage}; the data section is whole and was read in full")
     print("topics")
+    width = max([14, *(len(t) for t in log.topics)])
     for t in sorted(log.topics.values(), key=lambda t: t.topic):
-        print(f"  {t.topic:14s} {t.schema_name:26s} {t.message_encoding:9s} {t.count:7d} messages")
+        print(f"  {t.topic:{width}s} {t.schema_name:26s} {t.message_encoding:9s} {t.count:7d} messages")
     head = (
         f"{'episode':>7s}  {'outcome':11s} {'steps':>5s} {'time s':>7s} {'path m':>7s} {'turn deg':>8s} "
         f"{'clear m':>7s} {'return':>8s} {'ADE m':>6s} {'FDE m':>6s}  collision"
@@ -41,7 +42,11 @@ def cmd_log_info(args: argparse.Namespace) -> int:
     print(head)
     for ep in log.episodes:
         if not ep.complete:
-            print(f"{ep.index:7d}  {'incomplete':11s} {len(ep.steps) - 1:5d} {ep.duration:7.1f}  (the log stops here)")
+            steps = len(ep.team_steps if ep.team else ep.steps) - 1
+            print(f"{ep.index:7d}  {'incomplete':11s} {steps:5d} {ep.duration:7.1f}  (the log stops here)")
+            continue
+        if ep.team:
+            _team_rows(ep)
             continue
         s = ep.rescore()
         r = s.result
@@ -51,6 +56,22 @@ def cmd_log_info(args: argparse.Namespace) -> int:
             f"{fmt(s.fde, '6.2f'):>6s}  {r.collision_partner or '-'}"
         )
     return 0
+
+
+def _team_rows(ep) -> None:  # noqa: ANN001 - a LoggedEpisode of several aircraft
+    """``log info``'s rows of an episode of several aircraft: the team's line, then one per aircraft."""
+    team = ep.rescore_team()
+    reached = sum(r.outcome == "goal" for r in team.aircraft)
+    print(
+        f"{ep.index:7d}  {reached} of {len(team.aircraft)} aircraft reached their targets; makespan "
+        f"{fmt(team.makespan, '.1f')} s, {team.aircraft_collisions} aircraft-aircraft collision(s)"
+    )
+    for name, r in zip(ep.scene.agent_names, team.aircraft, strict=True):
+        print(
+            f"{name:>16s}  {r.outcome:11s} {r.steps:5d} {r.sim_time:7.1f} {r.path_length:7.1f} "
+            f"{r.turning_angle_deg:8.1f} {r.min_clearance:7.2f} {r.reward:8.2f} {'-':>6s} {'-':>6s}  "
+            f"{r.collision_partner or '-'}"
+        )
 
 
 def _parse_steps(text: str | None) -> list[int] | None:
@@ -79,7 +100,12 @@ def cmd_log_plot(args: argparse.Namespace) -> int:
     ep = _log_episode(log, args.episode)
     out = Path(args.out) if args.out else log.path.with_name(f"{log.path.stem}-episode{ep.index}.png")
     plot_episode(ep, out, prediction_steps=_parse_steps(args.steps), width_inches=args.width)
-    print(f"wrote {out} (episode {ep.index}, {ep.outcome or 'incomplete'})")
+    if ep.team and ep.complete:
+        reached = sum(r.outcome == "goal" for r in ep.rescore_team().aircraft)
+        outcome = f"{reached} of {len(ep.scene.agent_names)} aircraft reached their targets"
+    else:
+        outcome = ep.outcome or "incomplete"
+    print(f"wrote {out} (episode {ep.index}, {outcome})")
     return 0
 
 
@@ -124,6 +150,12 @@ def cmd_log_export(args: argparse.Namespace) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     stem = log.path.stem
     steps_path, episodes_path, events_path = (folder / f"{stem}_{k}.csv" for k in ("steps", "episodes", "events"))
+    if any(ep.team for ep in log.episodes):
+        rows, scored = _export_team(log, steps_path, episodes_path)
+        _export_events(log, events_path)
+        print(f"wrote {steps_path} ({rows} aircraft steps), {episodes_path} ({scored} complete episodes, one row per "
+              f"aircraft), {events_path}")
+        return 0
     mover_names = log.episodes[0].scene.mover_names if log.episodes else ()
     step_fields = [
         "episode", "step", "time", "x", "y", "heading", "speed", "action_x", "action_y", "r1", "r2", "r3", "r4",
@@ -153,13 +185,60 @@ def cmd_log_export(args: argparse.Namespace) -> int:
         w.writeheader()
         for s, _ in scored:
             w.writerow({**s.result.as_dict(), "ade": s.ade, "fde": s.fde, "prediction_samples": s.prediction_samples})
-    with open(events_path, "w", newline="") as f:
+    _export_events(log, events_path)
+    print(f"wrote {steps_path} ({rows} steps), {episodes_path} ({len(scored)} complete episodes), {events_path}")
+    return 0
+
+
+def _export_events(log, path: Path) -> None:  # noqa: ANN001 - an EpisodeLog
+    with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["episode", "log_time_ns", "kind", "level", "message"])
         for e in log.events():
             w.writerow([e.episode, e.time_ns, e.kind, e.level, e.message])
-    print(f"wrote {steps_path} ({rows} steps), {episodes_path} ({len(scored)} complete episodes), {events_path}")
-    return 0
+
+
+def _export_team(log, steps_path: Path, episodes_path: Path) -> tuple[int, int]:  # noqa: ANN001 - an EpisodeLog
+    """``log export --csv`` of a log of several aircraft: one steps row per aircraft and step (its state record's
+    fields, ``x``, ``y`` where its path stands), one episodes row per aircraft of each complete episode (its
+    ``rescore_team`` result); the counts of both."""
+    from dataclasses import fields
+
+    from deck_sim.metrics import EpisodeResult
+
+    step_fields = [
+        "episode", "step", "time", "aircraft", "x", "y", "heading", "speed", "action_x", "action_y", "r1", "r2", "r3",
+        "r4", "total", "distance_to_goal", "min_clearance", "predictor_fallbacks", "collision", "reached_goal",
+        "left_surface", "done", "diverged", "last", "discount",
+    ]  # fmt: skip
+    rows = 0
+    with open(steps_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(step_fields)
+        for ep in log.episodes:
+            for s in ep.team_steps:
+                for a in s.aircraft:
+                    act = (None, None) if a.action is None else (float(a.action[0]), float(a.action[1]))
+                    t = a.reward_terms
+                    w.writerow([
+                        s.episode, s.step, s.time, a.name, float(a.track_xy[0]), float(a.track_xy[1]), a.heading,
+                        a.speed, *act, t["r1"], t["r2"], t["r3"], t["r4"], t["total"], a.distance_to_goal,
+                        a.min_clearance, s.predictor_fallbacks, a.collision or "", a.reached_goal, a.left_surface,
+                        a.done, s.diverged, s.last, a.discount,
+                    ])  # fmt: skip
+                    rows += 1
+    scored = 0
+    with open(episodes_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["aircraft", *(fl.name for fl in fields(EpisodeResult)), "shortest"])
+        w.writeheader()
+        for ep in log.episodes:
+            if not ep.complete:
+                continue
+            team = ep.rescore_team()
+            for name, r, bound in zip(ep.scene.agent_names, team.aircraft, team.shortest, strict=True):
+                w.writerow({"aircraft": name, **r.as_dict(), "shortest": bound})
+            scored += 1
+    return rows, scored
 
 
 def cmd_log_recover(args: argparse.Namespace) -> int:

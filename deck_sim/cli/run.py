@@ -112,7 +112,7 @@ def _play(args: argparse.Namespace) -> int:
     """``cmd_run`` but for a Ctrl-C outside the episodes."""
     import deck_sim
     from deck_sim.metrics import summarize
-    from deck_sim.policies import make_policy, policy_overrides
+    from deck_sim.policies import make_policy, policy_file, policy_overrides
     from deck_sim.policies.regimes import actor_regime, regime_text
     from deck_sim.rollout import run_episode
     from deck_sim.scenes import load_scene
@@ -131,7 +131,7 @@ def _play(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder"))
-        recorder = _open_run_recorder(args, env, out)
+        recorder = _open_run_recorder(args, env, out, policy_file(args.policy, env.task.spec.name))
         if recorder is not None:
             stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
         bar = stack.enter_context(
@@ -223,17 +223,14 @@ def format_team_summary(name: str, policy: str, predictor: str, summary: dict[st
 
 def _play_team(args: argparse.Namespace) -> int:
     """``_play`` for a scene of several aircraft: one team policy (``make_team_policy``) acts for all; the
-    tables count aircraft and episodes in which every one arrived. No episode log is written
-    (``--record`` is refused)."""
+    tables count aircraft and episodes in which every one arrived, the log holds every aircraft."""
     import deck_sim
     from deck_sim.metrics import rate_interval, summarize, summarize_team
     from deck_sim.policies import make_team_policy, team_policy_overrides
     from deck_sim.policies.regimes import actor_regime, regime_text
+    from deck_sim.policies.team import team_policy_file
     from deck_sim.rollout import run_team_episode
 
-    if args.record:
-        raise ValueError(f"--record: deck-sim run writes no episode log of a scene of several aircraft "
-                         f"({args.scene}); drop --record")
     overrides, scene_set = _run_overrides(args, team_policy_overrides(args.policy, Path(args.scene).stem))
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
@@ -244,12 +241,15 @@ def _play_team(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder", team=True))
+        recorder = _open_run_recorder(args, env, out, team_policy_file(args.policy, env.task.spec.name))
+        if recorder is not None:
+            stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
         bar = stack.enter_context(
             progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
         )
         try:
             for k in bar:
-                results.append(run_team_episode(env, policy, episode=k))
+                results.append(run_team_episode(env, policy, episode=k, recorder=recorder))
                 table.write(results)
                 aircraft = [r for team in results for r in team.aircraft]
                 reached = sum(r.outcome == "goal" for r in aircraft)
@@ -260,7 +260,8 @@ def _play_team(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     if not results:
         print(f"deck-sim run: stopped (Ctrl-C) before the first episode finished; {out / 'episodes.csv'} holds only "
-              "its header", file=sys.stderr)
+              "its header" + (f", {recorder.path} the unfinished episode" if recorder is not None else ""),
+              file=sys.stderr)
         return INTERRUPTED
     aircraft = [r for team in results for r in team.aircraft]
     low, high = rate_interval(sum(r.outcome == "goal" for r in aircraft), len(aircraft))
@@ -286,9 +287,12 @@ def _play_team(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(meta, indent=2))
     (out / "results.md").write_text(table_text + "\n" + note)
     print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'} (one row per aircraft)")
+    if recorder is not None:
+        print(f"wrote {recorder.path} (episode log of every aircraft: deck-sim log info {recorder.path})")
     if stopped:
+        log_note = "" if recorder is None else f"; {recorder.path} is closed, the unfinished episode incomplete"
         print(f"deck-sim run: stopped (Ctrl-C) after {len(results)} of {args.episodes} episodes; their results are "
-              f"written to {out} (summary.json marked stopped)", file=sys.stderr)
+              f"written to {out} (summary.json marked stopped){log_note}", file=sys.stderr)
         return INTERRUPTED
     return 0
 
@@ -350,8 +354,9 @@ def _add_record_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-record", action="store_true", help="write no episode log")
 
 
-def _open_run_recorder(args: argparse.Namespace, env, out: Path):  # noqa: ANN001, ANN202 - lazy imports
-    """The recorder of ``deck-sim run`` (``None`` with ``--no-record``), replacing an earlier log of the run."""
+def _open_run_recorder(args: argparse.Namespace, env, out: Path, actor: Path | None):  # noqa: ANN001, ANN202
+    """The recorder of ``deck-sim run`` (``None`` with ``--no-record``), replacing an earlier log of the run;
+    ``actor`` is the policy's actor file, if it has one."""
     if args.no_record:
         return None
     from deck_sim.rollout import open_recorder
@@ -359,9 +364,6 @@ def _open_run_recorder(args: argparse.Namespace, env, out: Path):  # noqa: ANN00
     path = Path(args.record) if args.record else out / "episodes.mcap"
     path.parent.mkdir(parents=True, exist_ok=True)
     config = {k: getattr(args, k) for k in ("command", "scene", "policy", "episodes", "seed", "predictor")}
-    from deck_sim.policies import policy_file
-
-    actor = policy_file(args.policy, env.task.spec.name)
     return open_recorder(path, env, seed=args.seed, policy=args.policy, config=config, overwrite=True,
                          checkpoint=str(actor) if actor is not None else "")
 

@@ -13,6 +13,7 @@ multi-aircraft scene.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -185,6 +186,14 @@ def _not_a_team_policy(name: str, scene: str) -> ValueError:
     )
 
 
+def team_policy_file(name: str, scene: str) -> Path | None:
+    """The actor file behind team policy ``name`` on the multi-aircraft ``scene`` (``shared_actor_scene`` for a
+    shipped name), or None for a planner, ``random`` or ``zero``."""
+    if name in TEAM_PLANNERS:
+        return None
+    return policy_file(name, shared_actor_scene(name, scene))
+
+
 def make_team_policy(name: str, env: composer.Environment, seed: int = 0) -> TeamPolicy:
     """The team policy called ``name`` for a multi-aircraft ``env``: a planner of ``TEAM_PLANNERS``
     (``prioritised``, ``independent``), or a single-agent policy that reads the observation acting for every aircraft
@@ -194,7 +203,7 @@ def make_team_policy(name: str, env: composer.Environment, seed: int = 0) -> Tea
     if name in TEAM_PLANNERS:
         return TEAM_PLANNERS[name](env)
     scene = env.task.spec.name
-    path = policy_file(name, shared_actor_scene(name, scene))
+    path = team_policy_file(name, scene)
     if path is not None:
         return SharedPolicy(load_actor(path), env)
     if name in ("random", "zero"):

@@ -27,14 +27,22 @@ from mcap.records import Message
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 
-from deck_sim.metrics import EpisodeResult, outcome_of, path_length, prediction_errors, turning_angle
+from deck_sim.metrics import (
+    EpisodeResult,
+    TeamEpisodeResult,
+    outcome_of,
+    path_length,
+    prediction_errors,
+    shortest_path,
+    turning_angle,
+)
 from deck_sim.recording import schema
 from deck_sim.recording.records import (
     DECODE_ERRORS,
     LogError,
     read_records,
 )
-from deck_sim.types import SceneFrame, StepFrame
+from deck_sim.types import AircraftStep, SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
 
 _logger = logging.getLogger(__name__)
 
@@ -114,21 +122,174 @@ class LoggedEpisode:
         self._messages = messages
         self._decode = decode
         self._steps: list[StepFrame] | None = None
+        self._team_steps: list[TeamStepFrame] | None = None
 
     def __repr__(self) -> str:
         return f"LoggedEpisode(index={self.index}, complete={self.complete}, steps={len(self.steps)})"
 
     @property
+    def team(self) -> bool:
+        """Whether the episode has several aircraft (read ``team_steps`` and ``rescore_team``)."""
+        return isinstance(self.scene, TeamSceneFrame)
+
+    @property
     def steps(self) -> list[StepFrame]:
         """Every step whose messages the log holds whole, step 0 (the reset) first."""
+        if self.team:
+            raise LogError(f"episode {self.index} has {len(self.scene.agent_names)} aircraft: read its team_steps")
         if self._steps is None:
             self._steps = self._decode_steps()
         return self._steps
 
     @property
+    def team_steps(self) -> list[TeamStepFrame]:
+        """Every step of an episode of several aircraft whose messages the log holds whole, step 0 first."""
+        if not self.team:
+            raise LogError(f"episode {self.index} has one aircraft: read its steps")
+        if self._team_steps is None:
+            self._team_steps = self._decode_team_steps()
+        return self._team_steps
+
+    def _poses(self, m: Message, frames: list[str]) -> np.ndarray:
+        """(len(frames), 7) the poses of ``frames`` in the ``/tf`` message ``m``."""
+        transforms = self._decode(m)
+        poses = {
+            t.child_frame_id: (t.translation.x, t.translation.y, t.translation.z, t.rotation.w, t.rotation.x,
+                               t.rotation.y, t.rotation.z)
+            for t in transforms.transforms
+        }
+        try:
+            return np.array([poses[name] for name in frames], dtype=np.float64).reshape(len(frames), 7)
+        except KeyError as err:
+            raise LogError(f"episode {self.index}: /tf at {m.log_time} ns lacks frame {err}") from None
+
+    def _lines(self, m: Message | None, names: list[str]) -> np.ndarray:
+        """(len(names), N, 2) the predicted positions of ``names`` in the ``/prediction`` message ``m``."""
+        if m is None:
+            return np.zeros((len(names), 0, 2))
+        lines = {e.id: e.lines[0].points for e in self._decode(m).entities}
+        return np.array(
+            [[(q.x, q.y) for q in lines[f"prediction/{name}"][1:]] for name in names], dtype=np.float64
+        ).reshape(len(names), -1, 2)
+
+    def _decode_team_steps(self) -> list[TeamStepFrame]:
+        scene = self.scene
+        names, movers = list(scene.agent_names), list(scene.mover_names)
+        tf = {m.log_time: m for m, _ in self._messages.get(schema.TF, [])}
+        pred = {m.log_time: m for m, _ in self._messages.get(schema.PREDICTION, [])}
+        states = [{m.log_time: state for m, state in self._messages.get(schema.agent_state_topic(name), [])}
+                  for name in names]
+        steps = []
+        for t in sorted(states[0]):
+            if t not in tf or any(t not in s for s in states):  # lost with a truncated tail
+                continue
+            poses = self._poses(tf[t], [*names, *movers])
+            aircraft = []
+            for i, name in enumerate(names):
+                st = states[i][t]
+                action = None if st["action_x"] is None else np.array([st["action_x"], st["action_y"]])
+                aircraft.append(
+                    AircraftStep(
+                        name=name,
+                        action=action,
+                        pose=poses[i],
+                        heading=float(st["heading"]),
+                        speed=float(st["speed"]),
+                        track_xy=np.array([st["x"], st["y"]], dtype=np.float64),
+                        reward_terms={k: float(st[k]) for k in ("r1", "r2", "r3", "r4", "total")},
+                        distance_to_goal=schema.from_number(st["distance_to_goal"]),
+                        min_clearance=schema.from_number(st["min_clearance"]),
+                        collision=st["collision"],
+                        reached_goal=bool(st["reached_goal"]),
+                        left_surface=bool(st["left_surface"]),
+                        done=bool(st["done"]),
+                        discount=None if st["discount"] is None else float(st["discount"]),
+                    )
+                )
+            first = states[0][t]
+            steps.append(
+                TeamStepFrame(
+                    episode=int(first["episode"]),
+                    step=int(first["step"]),
+                    time=float(first["time"]),
+                    aircraft=tuple(aircraft),
+                    mover_poses=poses[len(names):],
+                    prediction=self._lines(pred.get(t), [*movers, *names]),
+                    predictor_fallbacks=int(first["predictor_fallbacks"]),
+                    diverged=bool(first["diverged"]),
+                    last=bool(first["last"]),
+                )
+            )
+        return steps
+
+    def rescore_team(self) -> TeamEpisodeResult:
+        """Every aircraft's outcome, path, turning angle, reward and clearance, and the team's makespan and
+        aircraft-aircraft collisions, from the log alone: equal, field for field, to what
+        ``deck_sim.rollout.run_team_episode`` measured live (same float64 inputs, same functions, same order).
+
+        Raises:
+            LogError: the episode has one aircraft, or is incomplete.
+        """
+        if not self.complete:
+            raise LogError(f"episode {self.index} is incomplete (the log stops before its end): it cannot be scored")
+        steps = self.team_steps
+        if not steps or [s.step for s in steps] != list(range(len(steps))):
+            raise LogError(f"episode {self.index}: the log's steps are not 0..{len(steps) - 1} in order")
+        scene, last = self.scene, steps[-1]
+        names = list(scene.agent_names)
+        fallbacks = sum(s.predictor_fallbacks for s in steps[1:])
+        body_width = float(np.min(scene.agent_footprint.half[0]) + scene.agent_footprint.radius[0])
+        results, shortest = [], []
+        for i in range(len(names)):
+            track, total, done_before = [steps[0].aircraft[i]], 0.0, False
+            min_clear = steps[0].aircraft[i].min_clearance
+            for s in steps[1:]:
+                a = s.aircraft[i]
+                total += float(a.reward_terms["total"])
+                if not done_before:
+                    track.append(a)
+                    min_clear = min(min_clear, a.min_clearance)
+                done_before = done_before or a.done
+            end = last.aircraft[i]
+            xy = np.array([a.track_xy for a in track])
+            start, target = xy[0], scene.targets_xy[i]
+            shortest.append(
+                max(shortest_path(scene.statics, body_width, scene.bounds, start, target) - scene.goal_radius, 0.0)
+            )
+            flags = {"reached_goal": end.reached_goal, "collision": end.collision, "left_surface": end.left_surface,
+                     "diverged": last.diverged and not end.done}
+            results.append(
+                EpisodeResult(
+                    scene=scene.scene,
+                    episode=self.index,
+                    outcome=outcome_of(flags, truncated=not end.done),
+                    steps=len(xy) - 1,
+                    sim_time=float(steps[len(track) - 1].time if end.done else last.time),
+                    reward=total,
+                    path_length=path_length(xy),
+                    start_target_distance=float(np.linalg.norm(target - start)),
+                    turning_angle_deg=float(np.degrees(turning_angle(xy))),
+                    min_clearance=float(min_clear),
+                    collision_partner=end.collision,
+                    predictor_fallbacks=int(fallbacks),
+                )
+            )
+        pairs = {frozenset((name, r.collision_partner)) for name, r in zip(names, results, strict=True)
+                 if r.collision_partner in names}
+        reached = [r.sim_time for r in results if r.outcome == "goal"]
+        return TeamEpisodeResult(
+            scene=scene.scene,
+            episode=self.index,
+            aircraft=tuple(results),
+            shortest=tuple(shortest),
+            makespan=float(max(reached)) if len(reached) == len(names) else float("nan"),
+            aircraft_collisions=len(pairs),
+        )
+
+    @property
     def duration(self) -> float:
         """Simulated seconds from the reset to the last step logged."""
-        steps = self.steps
+        steps = self.team_steps if self.team else self.steps
         return steps[-1].time if steps else 0.0
 
     @property
@@ -321,7 +482,7 @@ class EpisodeLog:
             if ch is None or decode is None:
                 raise LogError(f"{self.path}: message on unknown or undecodable channel {m.channel_id}")
             counts[m.channel_id] += 1
-            if ch.topic in (schema.STATE, schema.EVENTS, schema.SCENE):
+            if ch.topic in (schema.EVENTS, schema.SCENE) or schema.is_state_topic(ch.topic):
                 try:
                     by_topic[ch.topic].append((m, decode(m.data)))
                 except DECODE_ERRORS as err:
@@ -356,7 +517,7 @@ class EpisodeLog:
         self._episodes: list[LoggedEpisode] = []
         for (t0, _), msgs in zip(starts, grouped, strict=True):
             scenes = msgs.get(schema.SCENE, [])
-            states = msgs.get(schema.STATE, [])
+            states = [m for topic, items in msgs.items() if schema.is_state_topic(topic) for m in items]
             if not scenes or not states:
                 continue  # the writer was killed before the episode's scene or first step reached the disk
             deck = next((e for e in scenes[0][1].entities if e.id == "deck"), None)

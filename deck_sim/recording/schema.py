@@ -17,6 +17,16 @@ Topics (Foxglove well-known schemas in protobuf, recognised by their exact names
     /events       foxglove.Log              episode start and end, the outcome (goal, collision, timeout,
                                              off_surface, diverged) and predictor fallbacks; ``name`` is the kind
 
+A log of several aircraft (``deck1-multi`` ...) has, instead of the agent's frame and topics, one frame per
+aircraft (frame = its name, ``aircraft_0`` ...) and per aircraft:
+
+    /agent/<name>/path   foxglove.SceneUpdate   every step, that aircraft's path so far (entity ``<name>_path``)
+    /agent/<name>/state  deck_sim.AgentState    every step, JSON: its state, with ``agent`` (its name) and ``done``;
+                                                 ``x``, ``y`` are where its path stands (where it was done, once done)
+
+``/prediction`` holds one line per mover and per aircraft (``prediction/<name>``), ``/scene`` a target per
+aircraft (``target/<name>``), and ``/events`` an outcome event per aircraft (its message names it).
+
 Log time is simulation time: episode k's messages are stamped ``base_k + t`` with t the simulated seconds since
 its reset; ``base_0 = 0`` and ``base_k`` is one second after the whole second that follows episode k-1's last
 step (``next_base``), so episodes never overlap and each starts on a whole second.
@@ -31,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from deck_sim.geometry import Footprints
-from deck_sim.types import SceneFrame, StepFrame
+from deck_sim.types import SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
 
 FORMAT = "deck_sim.episode_log/1"
 """Value of the ``format`` key of the ``deck_sim`` metadata record."""
@@ -96,11 +106,28 @@ STATE_SCHEMA: dict[str, Any] = {
         "diverged": {"type": "boolean"},
         "last": {"type": "boolean", "description": "the episode ended at this step"},
         "discount": {"type": ["number", "null"], "description": "0 on termination, 1 otherwise"},
+        "agent": {"type": "string", "description": "the aircraft's name (logs of several aircraft)"},
+        "done": {"type": "boolean", "description": "the aircraft is done (logs of several aircraft)"},
     },
 }
 """JSON Schema of ``/agent/state`` messages (schema encoding ``jsonschema``)."""
 
 NS = 1_000_000_000
+
+
+def agent_path_topic(name: str) -> str:
+    """The path topic of aircraft ``name`` in a log of several aircraft."""
+    return f"/agent/{name}/path"
+
+
+def agent_state_topic(name: str) -> str:
+    """The state topic of aircraft ``name`` in a log of several aircraft."""
+    return f"/agent/{name}/state"
+
+
+def is_state_topic(topic: str) -> bool:
+    """Whether ``topic`` carries ``deck_sim.AgentState`` messages (``/agent/state`` or an aircraft's)."""
+    return topic == STATE or (topic.startswith("/agent/") and topic.endswith("/state"))
 
 
 def log_time(base_ns: int, t: float) -> int:
@@ -154,6 +181,39 @@ def state_record(frame: StepFrame) -> dict[str, Any]:
     }
 
 
+def aircraft_state_record(frame: TeamStepFrame, i: int) -> dict[str, Any]:
+    """The ``/agent/<name>/state`` message of aircraft ``i`` at a step of several aircraft (``STATE_SCHEMA``)."""
+    a = frame.aircraft[i]
+    terms = a.reward_terms
+    return {
+        "agent": a.name,
+        "episode": int(frame.episode),
+        "step": int(frame.step),
+        "time": float(frame.time),
+        "x": float(a.track_xy[0]),
+        "y": float(a.track_xy[1]),
+        "heading": float(a.heading),
+        "speed": float(a.speed),
+        "action_x": None if a.action is None else float(a.action[0]),
+        "action_y": None if a.action is None else float(a.action[1]),
+        "r1": float(terms["r1"]),
+        "r2": float(terms["r2"]),
+        "r3": float(terms["r3"]),
+        "r4": float(terms["r4"]),
+        "total": float(terms["total"]),
+        "distance_to_goal": number(a.distance_to_goal),
+        "min_clearance": number(a.min_clearance),
+        "predictor_fallbacks": int(frame.predictor_fallbacks),
+        "collision": a.collision,
+        "reached_goal": bool(a.reached_goal),
+        "left_surface": bool(a.left_surface),
+        "diverged": bool(frame.diverged),
+        "last": bool(frame.last),
+        "discount": None if a.discount is None else float(a.discount),
+        "done": bool(a.done),
+    }
+
+
 def _fp(fp: Footprints) -> dict[str, list]:
     return {
         "centers": np.asarray(fp.centers, dtype=float).tolist(),
@@ -173,9 +233,14 @@ def _unfp(d: dict[str, list]) -> Footprints:
 
 
 def scene_to_json(scene: SceneFrame) -> str:
-    """The scene frame as JSON (floats written exactly)."""
+    """The scene frame as JSON (floats written exactly; a ``TeamSceneFrame`` with its aircraft and targets)."""
+    team = {}
+    if isinstance(scene, TeamSceneFrame):
+        team = {"agent_names": list(scene.agent_names),
+                "targets_xy": np.asarray(scene.targets_xy, dtype=float).tolist()}
     return json.dumps(
         {
+            **team,
             "scene": scene.scene,
             "episode": int(scene.episode),
             "dt": float(scene.dt),
@@ -196,7 +261,12 @@ def scene_to_json(scene: SceneFrame) -> str:
 def scene_from_json(text: str) -> SceneFrame:
     """Inverse of ``scene_to_json``."""
     d = json.loads(text)
-    return SceneFrame(
+    team = {}
+    if "agent_names" in d:
+        team = {"agent_names": tuple(d["agent_names"]),
+                "targets_xy": np.array(d["targets_xy"], dtype=np.float64).reshape(-1, 2)}
+    return (TeamSceneFrame if team else SceneFrame)(
+        **team,
         scene=d["scene"],
         episode=int(d["episode"]),
         dt=float(d["dt"]),

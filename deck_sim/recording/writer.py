@@ -53,7 +53,7 @@ from foxglove.messages import (
 
 from deck_sim.metrics import outcome_of, path_length
 from deck_sim.recording import _lines, schema
-from deck_sim.types import SceneFrame, StepFrame
+from deck_sim.types import AircraftStep, SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
 
 DEFAULT_CHUNK_SIZE = 128 * 1024
 """Bytes (before compression) after which a chunk is closed: the most a killed process can lose of an episode."""
@@ -100,6 +100,13 @@ def _box(center: np.ndarray, half: np.ndarray, radius: float, yaw: float, z: flo
         pose=Pose(position=Vector3(x=float(center[0]), y=float(center[1]), z=z), orientation=_yaw_quaternion(yaw)),
         size=Vector3(x=2.0 * float(half[0] + radius), y=2.0 * float(half[1] + radius), z=_BOX_HEIGHT),
         color=color,
+    )
+
+
+def _state_schema() -> foxglove.Schema:
+    """The JSON schema of the state topics (``schema.STATE_SCHEMA``)."""
+    return foxglove.Schema(
+        name=schema.TOPICS[schema.STATE], encoding="jsonschema", data=json.dumps(schema.STATE_SCHEMA).encode()
     )
 
 
@@ -155,11 +162,7 @@ class EpisodeRecorder:
         )
         self._state = foxglove.Channel(
             schema.STATE,
-            schema=foxglove.Schema(
-                name=schema.TOPICS[schema.STATE],
-                encoding="jsonschema",
-                data=json.dumps(schema.STATE_SCHEMA).encode(),
-            ),
+            schema=_state_schema(),
             message_encoding="json",
             context=ctx,
         )
@@ -171,6 +174,7 @@ class EpisodeRecorder:
         self._closed = False
         self._next_base = 0
         self._scene_frame: SceneFrame | None = None
+        self._aircraft_channels: dict[str, tuple[foxglove.Channel, foxglove.Channel]] = {}
         self.episodes_completed = 0
         """Episodes written to their end."""
 
@@ -206,7 +210,9 @@ class EpisodeRecorder:
             f"{scene.target_xy[1]:.1f}) m, {len(scene.static_names)} static obstacles, "
             f"{len(scene.mover_names)} movers",
         )
-        self._write_scene(t_ns, scene, first)
+        target = [("target", scene.target_xy, "target")]
+        self._write_scene(t_ns, scene, target, [(schema.AGENT_FRAME, schema.AGENT_FRAME, first.agent_pose)],
+                          first.mover_poses)
         self.record_step(first)
 
     def record_step(self, frame: StepFrame) -> None:
@@ -287,11 +293,164 @@ class EpisodeRecorder:
         self._scene_frame = None
         self.episodes_completed += 1
 
+    # -- episodes of several aircraft -----------------------------------------------------------------------
+    def _agent_channels(self, name: str) -> tuple[foxglove.Channel, foxglove.Channel]:
+        """Aircraft ``name``'s path and state channels (made on first use, kept for the file's later episodes)."""
+        if name not in self._aircraft_channels:
+            ctx = self._context
+            path = foxglove.Channel(
+                schema.agent_path_topic(name), schema=SceneUpdate.get_schema(), message_encoding="protobuf", context=ctx
+            )
+            state = foxglove.Channel(
+                schema.agent_state_topic(name),
+                schema=_state_schema(),
+                message_encoding="json",
+                context=ctx,
+            )
+            self._aircraft_channels[name] = (path, state)
+        return self._aircraft_channels[name]
+
+    def begin_team_episode(self, scene: TeamSceneFrame, first: TeamStepFrame) -> None:
+        """``begin_episode`` for several aircraft: the scene with every aircraft's target and box, and step 0.
+
+        An episode still open is left incomplete.
+        """
+        self._check_open()
+        if first.step != 0:
+            raise RecordingError(f"an episode starts with step 0, got step {first.step}")
+        if first.episode != scene.episode:
+            raise RecordingError(f"step of episode {first.episode} given with the scene of episode {scene.episode}")
+        if [a.name for a in first.aircraft] != list(scene.agent_names):
+            raise RecordingError(f"step of aircraft {[a.name for a in first.aircraft]}, scene of {scene.agent_names}")
+        if self._scene_frame is not None:  # the previous episode did not end
+            self._next_base = schema.next_base(self._base, self._last_ns)
+        self._base = self._next_base
+        self._scene_frame = scene
+        names = list(scene.agent_names)
+        self._names = [*scene.mover_names]
+        self._transforms = _lines.Transforms(schema.ROOT_FRAME, [*names, *scene.mover_names])
+        ids = [f"prediction/{name}" for name in (*scene.mover_names, *names)]
+        self._prediction_lines = _lines.LineStrips(schema.ROOT_FRAME, ids, _IDENTITY_PB, 0.4, _PREDICTION_PB)
+        self._team_paths = [
+            (_lines.LineStrips(schema.ROOT_FRAME, [f"{name}_path"], _IDENTITY_PB, 0.5, _PATH_PB), bytearray())
+            for name in names
+        ]
+        self._team_done = [False] * len(names)
+        self._team_returns = [0.0] * len(names)
+        t_ns = schema.log_time(self._base, first.time)
+        self._event(
+            t_ns,
+            "episode_start",
+            LogLevel.Info,
+            f"episode {scene.episode} start: {scene.scene}, {len(names)} aircraft, "
+            f"{len(scene.static_names)} static obstacles, {len(scene.mover_names)} movers",
+        )
+        targets = [(f"target/{name}", xy, f"{name} target") for name, xy in zip(names, scene.targets_xy, strict=True)]
+        agents = [(a.name, a.name, a.pose) for a in first.aircraft]
+        self._write_scene(t_ns, scene, targets, agents, first.mover_poses)
+        self.record_team_step(first)
+
+    def record_team_step(self, frame: TeamStepFrame) -> None:
+        """Write one control step of several aircraft (``/tf``, ``/prediction``, every aircraft's path and state,
+        the outcome event of each aircraft done at this step; the episode's end at its last step)."""
+        self._check_open()
+        scene = self._scene_frame
+        if not isinstance(scene, TeamSceneFrame):
+            raise RecordingError("record_team_step outside an episode of several aircraft: call begin_team_episode")
+        if frame.episode != scene.episode:
+            raise RecordingError(f"step of episode {frame.episode} in episode {scene.episode}")
+        if frame.mover_poses.shape[0] != len(self._names) or len(frame.aircraft) != len(scene.agent_names):
+            raise RecordingError(
+                f"step has {frame.mover_poses.shape[0]} movers and {len(frame.aircraft)} aircraft, the scene "
+                f"{len(self._names)} and {len(scene.agent_names)}"
+            )
+        t_ns = schema.log_time(self._base, frame.time)
+        self._last_ns = t_ns
+        poses = np.vstack([*(a.pose[None] for a in frame.aircraft), frame.mover_poses])
+        stamp = _lines.stamp(t_ns)
+        self._tf.log(self._transforms.encode(stamp, poses), log_time=t_ns)
+        rows, horizon = frame.prediction.shape[:2]
+        if horizon > 0 and rows > 0:  # movers, then aircraft: where each is now, then its N predicted positions
+            xyz = np.empty((rows, horizon + 1, 3))
+            now = np.vstack([frame.mover_xy, *(a.pose[None, :2] for a in frame.aircraft)])
+            xyz[:, 0, :2], xyz[:, 1:, :2], xyz[..., 2] = now, frame.prediction, _LINE_Z
+            fields = _lines.points(xyz)
+            size = len(fields) // rows
+            self._prediction.log(
+                self._prediction_lines.encode(stamp, [fields[i * size : (i + 1) * size] for i in range(rows)]),
+                log_time=t_ns,
+            )
+        for i, a in enumerate(frame.aircraft):
+            path_channel, state_channel = self._agent_channels(a.name)
+            line, points = self._team_paths[i]
+            if not self._team_done[i]:  # the path ends where the aircraft was done
+                points += _lines.points([a.track_xy[0], a.track_xy[1], _LINE_Z])
+            path_channel.log(line.encode(stamp, [bytes(points)]), log_time=t_ns)
+            state_channel.log(json.dumps(schema.aircraft_state_record(frame, i)).encode(), log_time=t_ns)
+            if frame.step > 0 and not self._team_done[i]:
+                self._team_returns[i] += float(a.reward_terms["total"])
+            if a.done and not self._team_done[i]:
+                self._team_done[i] = True
+                self._aircraft_outcome(t_ns, frame, a, outcome_of({**vars(a), "diverged": False}, False))
+        if frame.predictor_fallbacks:
+            self._event(
+                t_ns,
+                "predictor_fallback",
+                LogLevel.Warning,
+                f"episode {frame.episode} step {frame.step}: the predictor fell back to constant velocity for "
+                f"{frame.predictor_fallbacks} vehicle(s)",
+            )
+        if frame.last:
+            for i, a in enumerate(frame.aircraft):
+                if not self._team_done[i]:
+                    self._aircraft_outcome(t_ns, frame, a, "diverged" if frame.diverged else "timeout")
+            reached = sum(a.reached_goal for a in frame.aircraft)
+            self._event(
+                t_ns,
+                "episode_end",
+                LogLevel.Info,
+                f"episode {frame.episode} end: {reached} of {len(frame.aircraft)} aircraft reached their targets, "
+                f"{frame.step} steps, {frame.time:.1f} s, returns "
+                + ", ".join(f"{a.name} {r:.2f}" for a, r in zip(frame.aircraft, self._team_returns, strict=True)),
+            )
+            self._writer.flush()
+            self._next_base = schema.next_base(self._base, t_ns)
+            self._scene_frame = None
+            self.episodes_completed += 1
+
+    def _aircraft_outcome(self, t_ns: int, frame: TeamStepFrame, a: AircraftStep, outcome: str) -> None:
+        k, t, name = frame.episode, frame.time, a.name
+        text = {
+            "goal": (LogLevel.Info, f"episode {k}: {name} reached its target at t = {t:.1f} s"),
+            "collision": (LogLevel.Error, f"episode {k}: {name} collided with {a.collision} at t = {t:.1f} s"),
+            "off_surface": (
+                LogLevel.Warning,
+                f"episode {k}: {name} left the surface at ({a.track_xy[0]:.1f}, {a.track_xy[1]:.1f}) m",
+            ),
+            "timeout": (
+                LogLevel.Warning,
+                f"episode {k}: {name} still taxiing at the time limit, t = {t:.1f} s, {a.distance_to_goal:.1f} m "
+                "from its target",
+            ),
+            "diverged": (LogLevel.Error, f"episode {k}: the physics diverged at t = {t:.1f} s with {name} taxiing"),
+        }
+        level, message = text[outcome]
+        self._event(t_ns, outcome, level, message)
+
     # -- messages ------------------------------------------------------------------------------------------
     def _event(self, t_ns: int, kind: str, level: LogLevel, message: str) -> None:
         self._events.log(Log(timestamp=_timestamp(t_ns), level=level, message=message, name=kind), log_time=t_ns)
 
-    def _write_scene(self, t_ns: int, scene: SceneFrame, first: StepFrame) -> None:
+    def _write_scene(
+        self,
+        t_ns: int,
+        scene: SceneFrame,
+        targets: Sequence[tuple[str, np.ndarray, str]],
+        agents: Sequence[tuple[str, str, np.ndarray]],
+        mover_poses: np.ndarray,
+    ) -> None:
+        """``/scene``: the deck, each target (entity id, position, label), the static obstacles, each aircraft's box
+        (frame, entity id, pose at the reset) and each mover's."""
         stamp = _timestamp(t_ns)
         (x0, y0), (x1, y1) = np.asarray(scene.bounds, dtype=float).tolist()
         entities = [
@@ -320,37 +479,38 @@ class EpisodeRecorder:
                     )
                 ],
             ),
-            SceneEntity(
-                timestamp=stamp,
-                frame_id=schema.ROOT_FRAME,
-                id="target",
-                cylinders=[
-                    CylinderPrimitive(
-                        pose=Pose(
-                            position=Vector3(x=float(scene.target_xy[0]), y=float(scene.target_xy[1]), z=0.1),
-                            orientation=_NO_ROTATION,
-                        ),
-                        size=Vector3(x=2 * scene.goal_radius, y=2 * scene.goal_radius, z=0.2),
-                        bottom_scale=1.0,
-                        top_scale=1.0,
-                        color=_TARGET_COLOR,
-                    )
-                ],
-                texts=[
-                    TextPrimitive(
-                        pose=Pose(
-                            position=Vector3(x=float(scene.target_xy[0]), y=float(scene.target_xy[1]), z=3.0),
-                            orientation=_NO_ROTATION,
-                        ),
-                        billboard=True,
-                        font_size=14.0,
-                        scale_invariant=True,
-                        color=_WHITE,
-                        text="target",
-                    )
-                ],
-            ),
         ]
+        for entity, xy, label in targets:
+            entities.append(
+                SceneEntity(
+                    timestamp=stamp,
+                    frame_id=schema.ROOT_FRAME,
+                    id=entity,
+                    cylinders=[
+                        CylinderPrimitive(
+                            pose=Pose(
+                                position=Vector3(x=float(xy[0]), y=float(xy[1]), z=0.1), orientation=_NO_ROTATION
+                            ),
+                            size=Vector3(x=2 * scene.goal_radius, y=2 * scene.goal_radius, z=0.2),
+                            bottom_scale=1.0,
+                            top_scale=1.0,
+                            color=_TARGET_COLOR,
+                        )
+                    ],
+                    texts=[
+                        TextPrimitive(
+                            pose=Pose(
+                                position=Vector3(x=float(xy[0]), y=float(xy[1]), z=3.0), orientation=_NO_ROTATION
+                            ),
+                            billboard=True,
+                            font_size=14.0,
+                            scale_invariant=True,
+                            color=_WHITE,
+                            text=label,
+                        )
+                    ],
+                )
+            )
         st = scene.statics
         for i, name in enumerate(scene.static_names):
             entities.append(
@@ -362,17 +522,18 @@ class EpisodeRecorder:
                 )
             )
         # the agent and the movers: boxes locked to their frames (moved by /tf), standing on the deck
-        bodies = [(schema.AGENT_FRAME, scene.agent_footprint, 0, first.agent_pose, _AGENT_COLOR)]
+        bodies = [(frame, entity, scene.agent_footprint, 0, pose, _AGENT_COLOR) for frame, entity, pose in agents]
         bodies += [
-            (name, scene.movers, i, first.mover_poses[i], _MOVER_COLOR) for i, name in enumerate(scene.mover_names)
+            (name, f"mover/{name}", scene.movers, i, mover_poses[i], _MOVER_COLOR)
+            for i, name in enumerate(scene.mover_names)
         ]
-        for name, fp, i, pose, color in bodies:
+        for name, entity, fp, i, pose, color in bodies:
             z = _BOX_HEIGHT / 2 - float(pose[2])
             entities.append(
                 SceneEntity(
                     timestamp=stamp,
                     frame_id=name,
-                    id=name if name == schema.AGENT_FRAME else f"mover/{name}",
+                    id=entity,
                     frame_locked=True,
                     cubes=[_box(fp.centers[i], fp.half[i], fp.radius[i], 0.0, z, color)],
                 )
