@@ -113,5 +113,7 @@ def policy_help() -> str:
     return (
         f"a shipped learned policy ({', '.join(LEARNED)}), a classical reference ({', '.join(CLASSICAL)}), "
         f"the scripted planner on the observation alone ({', '.join(OBSERVERS)}), "
-        f"the full-knowledge planner ({', '.join(ORACLES)}), {' or '.join(BASELINES)}, or an actor .npz file"
+        f"the full-knowledge planner ({', '.join(ORACLES)}), {' or '.join(BASELINES)}, or an actor .npz file; "
+        "on a multi-aircraft scene, prioritised or independent (full-knowledge planners of several aircraft), or a "
+        "learned policy, an actor file, random or zero acting for every aircraft"
     )

@@ -11,6 +11,7 @@ import deck_sim
 from deck_sim.control.planners import ScriptedPlanner
 from deck_sim.metrics import summarize_team
 from deck_sim.policies import PrioritisedPolicy
+from deck_sim.recording import EpisodeLog
 from deck_sim.rollout import run_team_episode
 from deck_sim.scenes import SceneSpecError, load_scene
 from deck_sim.tasks.actions import InvalidActionError
@@ -247,20 +248,51 @@ def test_a_shipped_single_agent_actor_acts_for_every_aircraft_on_its_nearest_mov
 
 
 @pytest.mark.parametrize(
-    "argv",
+    ("argv", "named"),
     [
-        ["eval", "--agents", "zero", "--scenes", "deck1,deck2-multi", "--episodes", "1"],
-        ["render", "--scene", "deck2-multi", "--policy", "zero", "--out", "never.mp4"],
+        (["render", "--scene", "deck2-multi", "--policy", "zero", "--out", "never.mp4"],
+         "deck-sim render acts for one"),
+        (["eval", "--agents", "zero,scripted", "--scenes", "deck1,deck2-multi", "--episodes", "1"],
+         "agents ['scripted'] plan for one"),
+        (["eval", "--agents", "prioritised", "--scenes", "deck1", "--episodes", "1"],
+         "agents ['prioritised'] plan for several aircraft; scene 'deck1' has one"),
     ],
 )
-def test_the_one_aircraft_commands_refuse_a_multi_aircraft_scene_by_name(argv, capsys, tmp_path, monkeypatch):
+def test_what_acts_for_one_aircraft_refuses_several_by_name(argv, named, capsys, tmp_path, monkeypatch):
     from deck_sim.cli import main
 
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert "aircraft" in err and ("multi" in err or "several" in err)
+    assert named in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+@pytest.mark.slow
+def test_the_evaluation_counts_aircraft_and_episodes_on_a_multi_aircraft_scene(tmp_path):
+    import csv
+
+    from deck_sim.evaluation import EvalConfig, evaluate, write_report
+
+    cfg = EvalConfig(agents=("prioritised", "mddpg"), scenes=("deck1-multi",), episodes=2, backend="serial",
+                     record="1", out=str(tmp_path))
+    res = evaluate(cfg)
+    write_report(res, tmp_path)
+    rows = list(csv.DictReader(open(tmp_path / "episodes.csv", newline="")))
+    assert [(r["agent"], r["episode"], r["aircraft"]) for r in rows][:5] == [
+        ("prioritised", "0", "aircraft_0"), ("prioritised", "0", "aircraft_1"), ("prioritised", "0", "aircraft_2"),
+        ("prioritised", "0", "aircraft_3"), ("prioritised", "1", "aircraft_0"),
+    ]
+    for agent in ("prioritised", "mddpg"):
+        mine = [r for r in rows if r["agent"] == agent]
+        s = res.summary("deck1-multi", agent)
+        assert (s["episodes"], s["aircraft"]) == (2, 8)
+        assert s["goal_rate"] == sum(r["outcome"] == "goal" for r in mine) / 8
+        arrived = sum(all(r["outcome"] == "goal" for r in mine if r["episode"] == e) for e in ("0", "1"))
+        assert s["all_reached_rate"] == arrived / 2
+    text = (tmp_path / "results.md").read_text()
+    assert "**Several aircraft**" in text and "| prioritised | deck1-multi | 2 | 8 |" in text
+    log = EpisodeLog(tmp_path / "logs" / "deck1-multi-mddpg-0000.mcap")
+    assert log.episodes[0].team
 
 
 def test_deck_sim_run_acts_for_every_aircraft_and_tables_aircraft_and_teams(tmp_path, capsys):

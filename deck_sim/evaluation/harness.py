@@ -26,6 +26,8 @@ log = logging.getLogger(__name__)
 
 AGENTS = tuple(agents.AGENTS)
 """Every agent name an evaluation accepts (``deck_sim.agents``), besides ``label=path`` to an actor file."""
+TEAM_AGENTS = ("prioritised", "independent")
+"""The full-knowledge planners of several aircraft (``deck_sim.policies.TEAM_PLANNERS``), for multi-aircraft scenes."""
 DEFAULT_AGENTS = ("mddpg", "ddpg", "apf", "astar", "mpc")
 """What ``deck-sim eval`` evaluates unless told: the paper's learned agents and the classical references."""
 TRAIN_SEED_BASE = 1_000_000
@@ -88,10 +90,16 @@ class EvalConfig:
         if len(set(labels)) != len(labels):
             raise EvalError(f"agent names repeat: {labels}")
         specs = [load_scene(s) for s in self.scenes]
-        multi = [s.name for s in specs if s.multi_agent]
-        if multi:
-            raise EvalError(f"scenes {multi} put several aircraft on the deck; the evaluation acts for one (run them "
-                            "with benchmarks/multiagent.py)")
+        for spec in specs:
+            if spec.multi_agent:
+                bad = [a for a in self.agents if not _team_capable(a)]
+                why = (f"scene {spec.name!r} has {spec.agents.count} aircraft; agents {bad} plan for one (for several: "
+                       f"{', '.join(TEAM_AGENTS)}, a learned policy or an actor file shared by every aircraft)")
+            else:
+                bad = [a for a in self.agents if a in TEAM_AGENTS]
+                why = f"agents {bad} plan for several aircraft; scene {spec.name!r} has one"
+            if bad:
+                raise EvalError(why)
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
             raise EvalError(f"scenes repeat (by their spec names): {names}")
@@ -120,9 +128,16 @@ def agent_label(agent: str) -> str:
         if not label or not path:
             raise EvalError(f"agent {agent!r}: expected label=path/to/actor.npz")
         return label
-    if agent not in AGENTS:
-        raise EvalError(f"unknown agent {agent!r}; expected one of {', '.join(AGENTS)} or label=path/to/actor.npz")
+    if agent not in AGENTS and agent not in TEAM_AGENTS:
+        raise EvalError(f"unknown agent {agent!r}; expected one of {', '.join(AGENTS)}, for several aircraft "
+                        f"{', '.join(TEAM_AGENTS)}, or label=path/to/actor.npz")
     return agent
+
+
+def _team_capable(agent: str) -> bool:
+    """Whether ``agent`` can act for every aircraft of a multi-aircraft scene (``make_team_policy``)."""
+    label, sep, path = agent.partition("=")
+    return bool(sep) or agent in TEAM_AGENTS or agent in agents.LEARNED or agent in ("random", "zero")
 
 
 def record_count(record: str, episodes: int) -> int:
@@ -151,19 +166,24 @@ def _scene_name(scene: str) -> str:
 
 
 def agent_overrides(agent: str, scene: str) -> dict[str, Any]:
-    """The scene fields an agent runs with (``deck_sim.load`` keywords; ``deck_sim.policies.policy_overrides``)."""
-    from deck_sim.policies import policy_overrides
+    """The scene fields an agent runs with (``deck_sim.load`` keywords; ``deck_sim.policies.policy_overrides``, or
+    ``team_policy_overrides`` on a multi-aircraft scene)."""
+    from deck_sim.policies import policy_overrides, team_policy_overrides
+    from deck_sim.scenes import load_scene
 
     label, sep, path = agent.partition("=")
-    return policy_overrides(path if sep else agent, _scene_name(scene))
+    overrides = team_policy_overrides if load_scene(scene).multi_agent else policy_overrides
+    return overrides(path if sep else agent, _scene_name(scene))
 
 
 def make_agent(agent: str, env: Any, seed: int = 0) -> Any:
-    """The policy (``reset()``, ``act(observation)``) of ``agent`` acting in ``env``."""
-    from deck_sim.policies import make_policy
+    """The policy (``reset()``, ``act(observation)``) of ``agent`` acting in ``env``: a team policy
+    (``make_team_policy``) acting for every aircraft of a multi-aircraft scene."""
+    from deck_sim.policies import make_policy, make_team_policy
 
     label, sep, path = agent.partition("=")
-    return make_policy(path if sep else agent, env, seed=seed)
+    make = make_team_policy if env.task.spec.multi_agent else make_policy
+    return make(path if sep else agent, env, seed=seed)
 
 
 @dataclass(frozen=True)
@@ -210,6 +230,12 @@ def run_unit(unit: Unit) -> list[dict[str, Any]]:
         Path(unit.log_path).parent.mkdir(parents=True, exist_ok=True)
         config = {"agent": unit.agent, "scene": unit.scene, "seed": unit.seed, "episodes": list(unit.indices)}
         recorder = open_recorder(unit.log_path, env, unit.seed, agent_label(unit.agent), config=config, overwrite=True)
+    if task.spec.multi_agent:
+        try:
+            return _team_unit(unit, env, policy, recorder)
+        finally:
+            if recorder is not None:
+                recorder.close()
     # the agent's centre never comes closer to an obstacle than its narrowest half-extent, so the shortest path of
     # a disc that wide is a lower bound of its path (it ends on the goal disc's edge: less the goal radius)
     _, half, rounding = task.agent.footprint
@@ -257,6 +283,48 @@ def run_unit(unit: Unit) -> list[dict[str, Any]]:
     finally:
         if recorder is not None:
             recorder.close()
+    return out
+
+
+def _team_unit(unit: Unit, env: Any, policy: Any, recorder: Any) -> list[dict[str, Any]]:
+    """``run_unit`` on a multi-aircraft scene: one record per aircraft of every episode, with its episode's team
+    figures (every aircraft arrived, makespan, aircraft-aircraft collisions) and its shortest way
+    (``run_team_episode``); no prediction errors (every aircraft's forecast is of the others' choices)."""
+    from deck_sim.rollout import run_team_episode
+
+    task = env.task
+    out = []
+    for i in unit.indices:
+        seed = episode_seed(unit.seed, i)
+        if unit.agent == "random":  # its own stream, seeded per episode like the scene
+            policy = make_agent(unit.agent, env, seed=seed)
+        clear: list[list[float]] = [[] for _ in range(task.n_agents)]
+        live = [True] * task.n_agents
+
+        def on_step(env: Any, ts: Any, action: Any, clear: list[list[float]] = clear, live: list[bool] = live) -> None:
+            for k, a in enumerate(env.task.last_info["agents"]):
+                if live[k]:  # (the clearances an aircraft had while it taxied, its done step included)
+                    clear[k].append(float(a["min_clearance"]))
+                    live[k] = not a["done"]
+
+        env.random_state.seed(seed)
+        team = run_team_episode(env, policy, episode=i, on_step=on_step, recorder=recorder)
+        threshold = unit.near_miss if unit.near_miss is not None else 0.5 * task.spec.agent.reach
+        for k, (name, result) in enumerate(zip(task.agent_names, team.aircraft, strict=True)):
+            row = {"agent": agent_label(unit.agent), "seed": seed, "aircraft": name, **result.as_dict()}
+            row.update(
+                predictor=task.predictor.name,
+                shortest_path=team.shortest[k],
+                near_misses=near_misses(np.array(clear[k]), threshold),
+                near_miss_m=threshold,
+                ade=float("nan"),
+                fde=float("nan"),
+                prediction_samples=0,
+                all_reached=team.all_reached,
+                makespan=team.makespan,
+                aircraft_collisions=team.aircraft_collisions,
+            )
+            out.append(row)
     return out
 
 
@@ -440,15 +508,17 @@ def evaluate(cfg: EvalConfig, progress: Callable[[int, int, list[dict]], None] |
         stream = _ray(units, workers, cfg.ray_address)
     t0 = time.perf_counter()
     rows: list[dict] = []
+    done = 0
     for batch in stream:
         rows.extend(batch)
+        done += len({(r["scene"], r["agent"], r["episode"]) for r in batch})  # (several rows per episode of a team)
         if progress is not None and batch:
-            progress(len(rows), total, batch)
+            progress(done, total, batch)
     wall = time.perf_counter() - t0
     order = {
         (_scene_name(s), agent_label(a)): k for k, (s, a) in enumerate((s, a) for s in cfg.scenes for a in cfg.agents)
     }
-    rows.sort(key=lambda r: (order[(r["scene"], r["agent"])], r["episode"]))
+    rows.sort(key=lambda r: (order[(r["scene"], r["agent"])], r["episode"], r.get("aircraft", "")))
     res = EvalResults(cfg, rows, wall_s=wall, logs=sorted({u.log_path for u in units if u.log_path}))
     res.summaries = [summarize_agent(rows, _scene_name(s), agent_label(a)) for s in cfg.scenes for a in cfg.agents]
     return res

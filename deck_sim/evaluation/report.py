@@ -76,6 +76,27 @@ def summarize_agent(rows: Sequence[dict[str, Any]], scene: str, agent: str) -> d
     for name in ("ade", "fde"):
         out[name] = float(np.average([r[name] for r in scored], weights=weights)) if scored else float("nan")
     out["collision_partners"] = _count(r["collision_partner"] for r in mine if r["outcome"] == "collision")
+    if "aircraft" in mine[0]:
+        out.update(_team_summary(mine))
+    return out
+
+
+def _team_summary(mine: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The episode-level figures of a multi-aircraft scene (rows: one per aircraft): episodes and aircraft, the
+    share of episodes in which every aircraft arrived, the mean makespan of those, aircraft-aircraft collisions per
+    episode (each with its 95 % interval)."""
+    episodes = {r["episode"]: r for r in mine}  # (the team figures repeat on every aircraft's row)
+    n = len(episodes)
+    full = [r for r in episodes.values() if r["all_reached"]]
+    lo, hi = rate_interval(len(full), n)
+    out: dict[str, Any] = {"episodes": n, "aircraft": len(mine), "all_reached_rate": len(full) / n,
+                           "all_reached_ci": [lo, hi]}
+    for name, values in (
+        ("makespan", [r["makespan"] for r in full]),
+        ("aircraft_collisions", [r["aircraft_collisions"] for r in episodes.values()]),
+    ):
+        m, lo, hi = mean_interval(values)
+        out[name], out[f"{name}_ci"] = m, [lo, hi]
     return out
 
 
@@ -171,6 +192,7 @@ def markdown_tables(res: EvalResults) -> str:
             f"{_paper('turning_deg', s, a, '.2f')} |"
         )
     lines += prediction_differences(res, scenes)
+    lines += team_table(res, scenes, agents)
     lines += [
         "",
         "**Reward and safety** (the paper gives reward only as curves: about 150 at the plateau for DQN, DDPG and "
@@ -193,6 +215,30 @@ def markdown_tables(res: EvalResults) -> str:
             f"{x['worst_clearance']:.2f} | {ade} | {fde} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def team_table(res: EvalResults, scenes: list[str], agents: list[str]) -> list[str]:
+    """The multi-aircraft scenes' table: aircraft that arrived, episodes in which every one did, makespan and
+    aircraft-aircraft collisions (no lines when no such scene was evaluated)."""
+    rows = [(s, a, x) for s, a, x in _evaluated(res, scenes, agents) if "all_reached_rate" in x]
+    if not rows:
+        return []
+    lines = [
+        "",
+        "**Several aircraft**: on a multi-aircraft scene the tables above count aircraft (every aircraft of every "
+        "episode, its path up to where it was done); here, per episode: every aircraft arrived, the time until the "
+        "last one did (those episodes), collisions between two aircraft.",
+        "",
+        "| agent | scene | episodes | aircraft | aircraft reached % | all arrived % | makespan s | "
+        "aircraft-aircraft collisions / episode |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for s, a, x in rows:
+        lines.append(
+            f"| {a} | {s} | {x['episodes']} | {x['aircraft']} | {_pct(x, 'goal')} | {_pct(x, 'all_reached')} | "
+            f"{_num(x, 'makespan')} | {_num(x, 'aircraft_collisions', '.2f')} |"
+        )
+    return lines
 
 
 def prediction_differences(res: EvalResults, scenes: list[str]) -> list[str]:
