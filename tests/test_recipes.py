@@ -191,10 +191,11 @@ def test_train_shipped_refuses_an_agent_whose_recipe_the_scene_lacks():
 
 
 def test_the_multi_aircraft_recipe_trains_a_shared_taught_actor_on_deck1_multi():
-    from training.team import is_multi_agent
+    from training.team import _refused, is_multi_agent
 
     recipe = load_recipe("deck1-multi")
     assert recipe.algos == ("mddpg", "ddpg") and recipe.scene == "deck1-multi"
     for algo in recipe.algos:
         config = recipe.config(algo, 0)
         assert is_multi_agent(config) and config.regime == "oracle-teacher"
+        assert _refused(config) == []  # the shared trainer takes every field of the recipe

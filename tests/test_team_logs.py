@@ -78,6 +78,20 @@ def test_a_team_log_holds_every_aircraft_and_every_forecast(team_log):
         _ = ep.steps
 
 
+def test_the_recorder_refuses_to_mix_one_and_several_aircraft(team_log, tmp_path):
+    from deck_sim.recording import EpisodeRecorder, RecordingError
+
+    path, _ = team_log
+    ep = EpisodeLog(path).episode(0)
+    with EpisodeRecorder(tmp_path / "x.mcap", metadata={}) as rec:
+        with pytest.raises(RecordingError, match="call begin_team_episode"):
+            rec.begin_episode(ep.scene, ep.team_steps[0])
+        rec.begin_team_episode(ep.scene, ep.team_steps[0])
+        with pytest.raises(RecordingError, match="call record_team_step"):
+            rec.record_step(ep.team_steps[1])
+    assert "team=True" in repr(ep) and ep.outcome is None  # each aircraft has its own outcome (rescore_team)
+
+
 def test_a_killed_team_run_keeps_its_finished_episodes(team_log, tmp_path):
     path, live = team_log
     data = path.read_bytes()

@@ -5,7 +5,6 @@ is refused by name."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 from conftest import short_config as _short
 from training_runs import assert_same_run
@@ -26,21 +25,33 @@ def _team(**fields):  # noqa: ANN003, ANN201
     return _short(**base)
 
 
+def _crowded(**fields):  # noqa: ANN003, ANN201
+    """Two environments of four aircraft acting at random for their first 120 of 480 transitions, in 20 s episodes (seed
+    2): some aircraft collide while the others taxi on, and episodes end and start again within the run."""
+    base = dict(scene_overrides={"agents__count": 4, "episode__time_limit": 20.0}, total_steps=480, seed=2,
+                learning_starts=120)
+    base.update(fields)
+    return _team(**base)
+
+
 @pytest.mark.slow
 def test_every_taxiing_aircraft_and_no_done_one_gives_a_transition(tmp_path):
-    trainer = make_trainer(_team(), tmp_path / "run", progress=False)
-    assert isinstance(trainer, TeamTrainer) and trainer.k == 2
+    trainer = make_trainer(_crowded(), tmp_path / "run", progress=False)
+    assert isinstance(trainer, TeamTrainer) and trainer.k == 4
     trainer.train(stop_at=1)  # the run's start and its first step
     taxiing = [trainer.step]
-    while trainer.step < 120:
+    while trainer.step < 480:
         taxiing.append(sum(int(s.live.sum()) for s in trainer.slots))
         before = trainer.buffer.size
         trainer.collect()
         assert trainer.buffer.size - before == taxiing[-1] == trainer.collected
     assert trainer.step == trainer.buffer.size == sum(taxiing)
-    assert max(taxiing) == 4  # two environments of two aircraft
+    assert max(taxiing) == 8 and min(taxiing) < 8  # two environments of four, some done before their episode's end
     terminated = trainer.buffer.terminated[: trainer.buffer.size]
-    assert set(np.unique(terminated)) <= {0.0, 1.0}
+    # every aircraft done before the time limit ends with one terminal transition; the time limit ends none
+    done = sum(r[0] != "timeout" for r in trainer.stats.recent)
+    assert terminated.sum() == done > 0
+    assert trainer.stats.episodes == 8 and all(s.episode == 1 for s in trainer.slots)  # each ended and began anew
     labels = trainer.buffer.labelled[: trainer.buffer.size]
     assert labels.all()  # the tuned recipe: the prioritised planner labels every aircraft's step
     trainer.close()
@@ -48,13 +59,14 @@ def test_every_taxiing_aircraft_and_no_done_one_gives_a_transition(tmp_path):
 
 @pytest.mark.slow
 def test_a_stopped_and_resumed_team_run_equals_an_unbroken_one(tmp_path):
-    whole = TeamTrainer(_team(), tmp_path / "whole", progress=False)
+    whole = TeamTrainer(_crowded(), tmp_path / "whole", progress=False)
     whole.train()
-    first = TeamTrainer(_team(), tmp_path / "broken", progress=False)
-    first.train(stop_at=90)
-    assert any(len(s.actions) > 0 for s in first.slots)  # stopped inside an episode
+    first = TeamTrainer(_crowded(), tmp_path / "broken", progress=False)
+    first.train(stop_at=100)
+    # stopped inside an episode in which some aircraft are done and others taxi on
+    assert any(0 < s.live.sum() < 4 and len(s.actions) > 0 for s in first.slots)
     first.close()
-    resumed = TeamTrainer(_team(), tmp_path / "broken", resume=True, progress=False)
+    resumed = TeamTrainer(_crowded(), tmp_path / "broken", resume=True, progress=False)
     resumed.train()
     assert_same_run(whole, resumed)
     whole.close()

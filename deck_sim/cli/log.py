@@ -100,7 +100,7 @@ def cmd_log_plot(args: argparse.Namespace) -> int:
     ep = _log_episode(log, args.episode)
     out = Path(args.out) if args.out else log.path.with_name(f"{log.path.stem}-episode{ep.index}.png")
     plot_episode(ep, out, prediction_steps=_parse_steps(args.steps), width_inches=args.width)
-    if ep.team and ep.complete:
+    if ep.team and ep.complete:  # (each aircraft has its outcome)
         reached = sum(r.outcome == "goal" for r in ep.rescore_team().aircraft)
         outcome = f"{reached} of {len(ep.scene.agent_names)} aircraft reached their targets"
     else:

@@ -240,7 +240,8 @@ def _play_team(args: argparse.Namespace) -> int:
     stopped = False
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
-        table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder", team=True))
+        label = "--out" if args.out else "the run's folder"
+        table = stack.enter_context(_EpisodeTable(out, label, aircraft=env.task.agent_names))
         recorder = _open_run_recorder(args, env, out, team_policy_file(args.policy, env.task.spec.name))
         if recorder is not None:
             stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
@@ -298,13 +299,14 @@ def _play_team(args: argparse.Namespace) -> int:
 
 
 class _EpisodeTable:
-    """``episodes.csv`` of a run, one row per episode written (and flushed) as the episode ends.
+    """``episodes.csv`` of a run, one row per episode (per aircraft, named ``aircraft``, for several) written (and
+    flushed) as the episode ends.
 
     Opening it creates the run's folder and proves it writable before any episode is played; it removes the
     ``summary.json`` and ``results.md`` of an earlier run in that folder, which would not describe this one.
     """
 
-    def __init__(self, out: Path, label: str, team: bool = False) -> None:
+    def __init__(self, out: Path, label: str, aircraft: Sequence[str] = ()) -> None:
         from deck_sim.metrics import EpisodeResult
 
         if out.exists() and not out.is_dir():
@@ -317,7 +319,8 @@ class _EpisodeTable:
         except OSError as err:
             raise ValueError(f"{label} {out}: cannot write the run's files there ({err.strerror or err})") from None
         names = [f.name for f in fields(EpisodeResult)]
-        self._writer = csv.DictWriter(self._file, fieldnames=["aircraft", *names] if team else names)
+        self._aircraft = list(aircraft)
+        self._writer = csv.DictWriter(self._file, fieldnames=["aircraft", *names] if aircraft else names)
         self._writer.writeheader()
         self._file.flush()
         self._written = 0
@@ -329,8 +332,8 @@ class _EpisodeTable:
 
         for r in results[self._written :]:
             if isinstance(r, TeamEpisodeResult):
-                for i, aircraft in enumerate(r.aircraft):
-                    self._writer.writerow({"aircraft": f"aircraft_{i}", **aircraft.as_dict()})
+                for name, aircraft in zip(self._aircraft, r.aircraft, strict=True):
+                    self._writer.writerow({"aircraft": name, **aircraft.as_dict()})
             else:
                 self._writer.writerow(r.as_dict())
             self._written += 1

@@ -125,7 +125,8 @@ class LoggedEpisode:
         self._team_steps: list[TeamStepFrame] | None = None
 
     def __repr__(self) -> str:
-        return f"LoggedEpisode(index={self.index}, complete={self.complete}, steps={len(self.steps)})"
+        steps = len(self.team_steps if self.team else self.steps)
+        return f"LoggedEpisode(index={self.index}, complete={self.complete}, steps={steps}, team={self.team})"
 
     @property
     def team(self) -> bool:
@@ -136,7 +137,8 @@ class LoggedEpisode:
     def steps(self) -> list[StepFrame]:
         """Every step whose messages the log holds whole, step 0 (the reset) first."""
         if self.team:
-            raise LogError(f"episode {self.index} has {len(self.scene.agent_names)} aircraft: read its team_steps")
+            raise LogError(f"episode {self.index} has {len(self.scene.agent_names)} aircraft: read its team_steps "
+                           "(and rescore_team)")
         if self._steps is None:
             self._steps = self._decode_steps()
         return self._steps
@@ -145,7 +147,7 @@ class LoggedEpisode:
     def team_steps(self) -> list[TeamStepFrame]:
         """Every step of an episode of several aircraft whose messages the log holds whole, step 0 first."""
         if not self.team:
-            raise LogError(f"episode {self.index} has one aircraft: read its steps")
+            raise LogError(f"episode {self.index} has one aircraft: read its steps (and rescore)")
         if self._team_steps is None:
             self._team_steps = self._decode_team_steps()
         return self._team_steps
@@ -294,7 +296,10 @@ class LoggedEpisode:
 
     @property
     def outcome(self) -> str | None:
-        """The outcome event's kind (goal, collision, timeout, off_surface, diverged); ``None`` if incomplete."""
+        """The outcome event's kind (goal, collision, timeout, off_surface, diverged); ``None`` if incomplete, and
+        for an episode of several aircraft (each has its own: ``rescore_team``)."""
+        if self.team:
+            return None
         for e in self.events:
             if e.kind in ("goal", "collision", "timeout", "off_surface", "diverged"):
                 return e.kind

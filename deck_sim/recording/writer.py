@@ -185,6 +185,8 @@ class EpisodeRecorder:
         An episode still open is left incomplete.
         """
         self._check_open()
+        if isinstance(scene, TeamSceneFrame):
+            raise RecordingError(f"the scene has {len(scene.agent_names)} aircraft: call begin_team_episode")
         if first.step != 0:
             raise RecordingError(f"an episode starts with step 0, got step {first.step}")
         if first.episode != scene.episode:
@@ -221,6 +223,8 @@ class EpisodeRecorder:
         scene = self._scene_frame
         if scene is None:
             raise RecordingError("record_step outside an episode: call begin_episode first")
+        if isinstance(scene, TeamSceneFrame):
+            raise RecordingError("record_step inside an episode of several aircraft: call record_team_step")
         if frame.episode != scene.episode:
             raise RecordingError(f"step of episode {frame.episode} in episode {scene.episode}")
         if frame.mover_poses.shape[0] != len(self._names):
@@ -316,6 +320,8 @@ class EpisodeRecorder:
         An episode still open is left incomplete.
         """
         self._check_open()
+        if not isinstance(scene, TeamSceneFrame):
+            raise RecordingError("the scene has one aircraft: call begin_episode")
         if first.step != 0:
             raise RecordingError(f"an episode starts with step 0, got step {first.step}")
         if first.episode != scene.episode:
