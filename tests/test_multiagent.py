@@ -367,3 +367,23 @@ def test_every_aircraft_count_gets_a_layout(scene, count):
     env.reset()
     assert env.task.get_reward(env.physics).shape == (count,) and len(env.action_spec()) == count
     env.close()
+
+
+def test_each_aircraft_has_its_own_observed_view():
+    observed = {"episode__static_size": True, "episode__mover_size": True, "episode__obstacle_shape": True}
+    env = deck_sim.load("deck1-multi", seed=4, **observed)
+    env.reset()
+    task = env.task
+    for i in range(task.n_agents):
+        view, full = task.observed_view(agent=i), task.planner_view(i)
+        np.testing.assert_allclose(view.agent_xy, full.agent_xy, atol=1e-5)
+        np.testing.assert_allclose(view.target_xy, full.target_xy, atol=1e-4)
+        assert len(view.movers) == len(full.movers)  # the movers, then the other aircraft
+    with pytest.raises(ValueError, match="aircraft 0-3, no aircraft 4"):
+        task.observed_view(agent=4)
+    from deck_sim.policies import IndependentPolicy
+
+    actions = IndependentPolicy(env, view="observation").act({})
+    assert actions.shape == (4, 2) and np.all(np.abs(actions) <= 1.0)
+    with pytest.raises(ValueError, match="has one aircraft, no aircraft 1"):
+        deck_sim.load("deck1", seed=0, **observed).task.observed_view(agent=1)

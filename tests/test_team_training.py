@@ -91,6 +91,27 @@ def test_the_shared_actor_records_its_regime_and_acts_for_every_aircraft(tmp_pat
     assert rows[0].startswith("step,") and len(rows) >= 2
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["mddpg", "ddpg"])
+def test_the_planner_regime_teaches_each_aircraft_from_its_own_observation(tmp_path, algo):
+    from deck_sim.policies import IndependentPolicy
+
+    observed = {"agents__count": 2, "episode__static_size": True, "episode__mover_size": True,
+                "episode__obstacle_shape": True}
+    cfg = _team(algo=algo, teacher_view="observation", scene_overrides=observed, total_steps=60, demo_episodes=1,
+                pretrain_updates=5)
+    assert cfg.regime == "planner"
+    trainer = TeamTrainer(cfg, tmp_path / "run", progress=False)
+    teacher = trainer.envs.teachers[0]
+    assert isinstance(teacher, IndependentPolicy)
+    assert teacher.view == ("observation" if algo == "mddpg" else "observation-without-forecast")
+    out = trainer.train()
+    trainer.close()
+    assert out["demonstrations"]["transitions"] > 0
+    assert trainer.buffer.labelled[: trainer.buffer.size].all()
+    assert LearnedPolicy.load(tmp_path / "run" / "actor.npz").meta["regime"] == "planner"
+
+
 def test_reward_regime_team_configs_name_their_regime():
     assert _team(demo_episodes=0, expert_relabel=False, bc_weight=0.0, pretrain_updates=0).regime == "reward"
     assert _team().regime == "oracle-teacher"
@@ -103,10 +124,6 @@ def test_reward_regime_team_configs_name_their_regime():
         ({"curriculum": ({"until": 0.5, "max_target_distance": 30.0, "movers": 1},)}, {}, "curriculum"),
         ({"her_ratio": 0.5}, {}, "hindsight"),
         ({"n_step": 3}, {}, "n-step"),
-        ({"teacher_view": "observation", "scene_overrides": {"agents__count": 2, "episode__static_size": True,
-                                                             "episode__mover_size": True,
-                                                             "episode__obstacle_shape": True}},
-         {}, "planner regime"),
         ({}, {"backend": "ray"}, "--backend ray"),
         ({}, {"workers": 1}, "--workers"),
     ],

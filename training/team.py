@@ -10,10 +10,11 @@ means as many transitions as it does for one aircraft; ``updates_per_step`` is p
 
 The regimes are those of one aircraft (``deck_sim.policies.regimes``): ``reward`` learns from every aircraft's
 reward alone; ``oracle-teacher`` is taught by the full-knowledge prioritised planner
-(``deck_sim.policies.PrioritisedPolicy``), which labels every aircraft's steps and plays the demonstrations. The
-``planner`` regime has no multi-aircraft teacher and is refused, as are what the single-agent loop adds that needs
-one aircraft per environment (a curriculum, hindsight targets, n-step returns, Ray); the environments step in the
-learner's process (a config's ``env_worker`` is not read).
+(``deck_sim.policies.PrioritisedPolicy``), which labels every aircraft's steps and plays the demonstrations;
+``planner`` by every aircraft's scripted planner on that aircraft's observation alone
+(``deck_sim.policies.IndependentPolicy`` with the config's ``teacher_policy_view``). What the single-agent loop
+adds that needs one aircraft per environment is refused (a curriculum, hindsight targets, n-step returns, Ray); the
+environments step in the learner's process (a config's ``env_worker`` is not read).
 
 Held-out evaluations play ``eval_episodes`` episodes and count aircraft: ``success`` in ``eval.csv`` is the share
 of aircraft that reached their targets; the share of episodes in which every aircraft arrived goes to TensorBoard
@@ -32,7 +33,7 @@ import torch
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize, summarize_team
-from deck_sim.policies import PrioritisedPolicy, SharedPolicy
+from deck_sim.policies import IndependentPolicy, PrioritisedPolicy, SharedPolicy
 from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import run_team_episode
 from deck_sim.scenes import load_scene
@@ -85,9 +86,15 @@ class TeamEnvs:
         cfg = self.config
         return deck_sim.load(cfg.scene, **{**cfg.scene_overrides, "episode__predictor": self.predictor})
 
-    def teacher(self, env: Any) -> PrioritisedPolicy:
-        """The full-knowledge prioritised planner of ``env`` (``TrainConfig.teacher_body`` for every aircraft)."""
-        return PrioritisedPolicy(env, body=self.config.teacher_body)
+    def teacher(self, env: Any) -> PrioritisedPolicy | IndependentPolicy:
+        """The teacher of ``env`` (``TrainConfig.teacher_body`` for every aircraft's planner): the full-knowledge
+        prioritised planner, or, where the teacher reads the observation (``teacher_view``, the ``planner``
+        regime), every aircraft's scripted planner on its own observation (``IndependentPolicy``; sharing plans
+        would tell each aircraft what its observation does not hold)."""
+        cfg = self.config
+        if cfg.teacher_policy_view == "full":
+            return PrioritisedPolicy(env, body=cfg.teacher_body)
+        return IndependentPolicy(env, view=cfg.teacher_policy_view, body=cfg.teacher_body)
 
     def flatten(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         """Every aircraft's flat observation (k, dim) float32 from a composer observation."""
@@ -144,9 +151,6 @@ def _refused(config: TrainConfig) -> list[str]:
         bad.append("hindsight targets (her_ratio)")
     if config.n_step > 1:
         bad.append("n-step returns (n_step)")
-    if config.teacher_view != "full":
-        bad.append("the planner regime (teacher_view 'observation': no multi-aircraft planner reads only an "
-                   "aircraft's observation)")
     return bad
 
 

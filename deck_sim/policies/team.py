@@ -22,7 +22,7 @@ from dm_control import composer
 from deck_sim import agents
 from deck_sim.control.planners import PrioritisedPlanner, ScriptedPlanner
 from deck_sim.policies.actors import OBSTACLE_SETS, load_actor
-from deck_sim.policies.reference import Policy
+from deck_sim.policies.reference import TEACHER_VIEWS, Policy
 from deck_sim.policies.registry import TRAINED_DIR, make_policy, policy_file, policy_overrides
 
 
@@ -70,20 +70,27 @@ class PrioritisedPolicy:
 
 
 class IndependentPolicy:
-    """Every aircraft plans alone: its own full-knowledge ``ScriptedPlanner`` (whole body) on its
-    ``MultiNavigate.planner_view``, the other aircraft predicted by the task's predictor like any mover, no plan
-    shared (what prioritised planning adds is the shared plans).
+    """Every aircraft plans alone: its own ``ScriptedPlanner`` on its ``MultiNavigate.planner_view`` (full
+    knowledge), the other aircraft predicted by the task's predictor like any mover, no plan shared (what prioritised
+    planning adds is the shared plans); with ``view`` ``observation``, on its own observation alone
+    (``observed_view``: the teacher of the ``planner`` regime), ``observation-without-forecast`` without its
+    forecast.
 
     Args:
         env: a composer environment of a multi-aircraft scene.
+        view: what each planner reads (``deck_sim.policies.TEACHER_VIEWS``).
+        body: ``ScriptedPlanner.body`` of every planner.
     """
 
-    def __init__(self, env: composer.Environment) -> None:
+    def __init__(self, env: composer.Environment, view: str = "full", body: bool = True) -> None:
         task = env.task
         if not task.spec.multi_agent:
             raise ValueError(f"scene {task.spec.name!r} has one agent: IndependentPolicy plans for several")
+        if view not in TEACHER_VIEWS:
+            raise ValueError(f"view: expected one of {', '.join(TEACHER_VIEWS)}, got {view!r}")
         self._env = env
-        self._planners = [ScriptedPlanner(body=True) for _ in range(task.n_agents)]
+        self.view = view
+        self._planners = [ScriptedPlanner(body=body) for _ in range(task.n_agents)]
 
     def reset(self) -> None:
         """Forget the previous episode."""
@@ -96,7 +103,11 @@ class IndependentPolicy:
         out = np.zeros((task.n_agents, 2))
         for i, a in enumerate(task.last_info["agents"]):
             if not a["done"]:
-                out[i] = task.action_from_world(self._planners[i].act(task.planner_view(i)), i)
+                if self.view == "full":
+                    view = task.planner_view(i)
+                else:
+                    view = task.observed_view(forecast=self.view == "observation", agent=i)
+                out[i] = task.action_from_world(self._planners[i].act(view), i)
         return out
 
 

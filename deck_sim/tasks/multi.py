@@ -371,6 +371,11 @@ class MultiNavigate(Navigate):
             "prediction": self._prediction.positions.copy(),
         }
 
+    def _agent_observation(self, agent: int) -> dict[str, np.ndarray]:
+        if not 0 <= agent < self._n_agents:
+            raise ValueError(f"scene {self.spec.name!r} has aircraft 0-{self._n_agents - 1}, no aircraft {agent}")
+        return self._obs_all[agent]
+
     def observation_of(self, i: int) -> dict[str, np.ndarray]:
         """Aircraft i's observation of the current step, with the single-agent keys (copies)."""
         return {key: np.array(v) for key, v in self._obs_all[i].items()}

@@ -623,20 +623,27 @@ class Navigate(composer.Task):
             path = np.stack([agent_xy, target])
         return points_along(path, self.spec.agent.reach * np.arange(1, self._route_steps + 1))
 
-    def observed_view(self, forecast: bool = True) -> PlannerView:
+    def _agent_observation(self, agent: int) -> dict[str, np.ndarray]:
+        """Aircraft ``agent``'s observation of this step (one aircraft here: ``agent`` 0)."""
+        if agent != 0:
+            raise ValueError(f"scene {self.spec.name!r} has one aircraft, no aircraft {agent}")
+        return self._obs
+
+    def observed_view(self, forecast: bool = True, agent: int = 0) -> PlannerView:
         """What a planner may plan from when it sees only this step's observation (the ``planner`` regime's
         teacher): the obstacles' footprints, positions and headings as observed, and the movers' predicted
         positions as observed (``forecast``; without it, or without a ``predicted`` part, every mover is taken to
         stand where it is). The footprints are the observed rectangles of half-length and half-width, rounding
         included, so they contain the true rounded ones. What never changes during an episode and is no state of
         the world comes from the scene as in ``planner_view``: the agent's own size, body and limits, the goal
-        radius, the surface's bounds, the step's reach and period.
+        radius, the surface's bounds, the step's reach and period. ``agent``: whose observation (several
+        aircraft: ``aircraft_<agent>``'s).
 
         Raises:
             ValueError: The observation lacks the footprints (scene fields ``episode.static_size``,
                 ``episode.mover_size`` and ``episode.obstacle_shape`` must be on).
         """
-        obs = self._obs
+        obs = self._agent_observation(agent)
         missing = [f"episode.{field}" for field, key in (("static_size", "static_size"), ("mover_size",
                    "dynamic_size"), ("obstacle_shape", "dynamic_heading")) if key not in obs]
         if missing:
