@@ -109,29 +109,41 @@ def _out_folder(args: argparse.Namespace, scene_set: dict[str, object]) -> Path:
 
 
 def _play(args: argparse.Namespace) -> int:
-    """``cmd_run`` but for a Ctrl-C outside the episodes."""
+    """``cmd_run`` but for a Ctrl-C outside the episodes. On a scene of several aircraft one team policy
+    (``make_team_policy``) acts for all; the tables count aircraft and episodes in which every one arrived, and the
+    log holds every aircraft."""
     import deck_sim
-    from deck_sim.metrics import summarize
-    from deck_sim.policies import make_policy, policy_file, policy_overrides
+    from deck_sim.metrics import rate_interval, summarize, summarize_team
+    from deck_sim.policies import (
+        make_policy,
+        make_team_policy,
+        policy_file,
+        policy_overrides,
+        team_policy_overrides,
+    )
     from deck_sim.policies.regimes import actor_regime, regime_text
-    from deck_sim.rollout import run_episode
+    from deck_sim.policies.team import team_policy_file
+    from deck_sim.rollout import run_episode, run_team_episode
     from deck_sim.scenes import load_scene
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
-    if load_scene(args.scene, **scene_overrides(args.scene_set)).multi_agent:
-        return _play_team(args)
-    overrides, scene_set = _run_overrides(args, policy_overrides(args.policy, Path(args.scene).stem))
+    team = load_scene(args.scene, **scene_overrides(args.scene_set)).multi_agent
+    fields = team_policy_overrides if team else policy_overrides
+    overrides, scene_set = _run_overrides(args, fields(args.policy, Path(args.scene).stem))
     env = deck_sim.load(args.scene, seed=args.seed, **overrides)
     predictor = env.task.predictor.name
-    policy = make_policy(args.policy, env, seed=args.seed)
+    policy = (make_team_policy if team else make_policy)(args.policy, env, seed=args.seed)
+    play = run_team_episode if team else run_episode
+    actor = (team_policy_file if team else policy_file)(args.policy, env.task.spec.name)
     out = _out_folder(args, scene_set)
     results = []
     stopped = False
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
-        table = stack.enter_context(_EpisodeTable(out, "--out" if args.out else "the run's folder"))
-        recorder = _open_run_recorder(args, env, out, policy_file(args.policy, env.task.spec.name))
+        label = "--out" if args.out else "the run's folder"
+        table = stack.enter_context(_EpisodeTable(out, label, aircraft=env.task.agent_names if team else ()))
+        recorder = _open_run_recorder(args, env, out, actor)
         if recorder is not None:
             stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
         bar = stack.enter_context(
@@ -139,11 +151,12 @@ def _play(args: argparse.Namespace) -> int:
         )
         try:
             for k in bar:
-                r = run_episode(env, policy, episode=k, recorder=recorder)
-                results.append(r)
+                results.append(play(env, policy, episode=k, recorder=recorder))
                 table.write(results)
-                wins = sum(x.outcome == "goal" for x in results)
-                bar.set_postfix(success=f"{100 * wins / len(results):.0f}%", last=r.outcome)
+                done = _aircraft(results)
+                wins = 100 * sum(x.outcome == "goal" for x in done) / len(done)
+                bar.set_postfix(**({"reached": f"{wins:.0f}%"} if team else
+                                   {"success": f"{wins:.0f}%", "last": results[-1].outcome}))
         except KeyboardInterrupt:
             stopped = True
         table.write(results)
@@ -155,12 +168,20 @@ def _play(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return INTERRUPTED
-    summary = summarize(results)
-    table_text = format_summary(args.scene, args.policy, predictor, summary, wall)
-    meta_record = getattr(policy, "meta", None)
+    if team:
+        aircraft = _aircraft(results)
+        low, high = rate_interval(sum(r.outcome == "goal" for r in aircraft), len(aircraft))
+        summary = {**summarize(aircraft), **summarize_team(results), "reached_low": low, "reached_high": high}
+        table_text = format_team_summary(args.scene, args.policy, predictor, summary, wall)
+    else:
+        summary = summarize(results)
+        table_text = format_summary(args.scene, args.policy, predictor, summary, wall)
+    learned = getattr(policy, "policy", policy) if team else policy  # (a shared policy's own)
+    meta_record = getattr(learned, "meta", None)
     regime = actor_regime(meta_record) if isinstance(meta_record, dict) else None
-    if meta_record is not None:  # a learned policy: say what it learnt from
-        table_text = f"{args.policy} learnt from {regime_text(regime)}\n\n{table_text}"
+    if meta_record is not None:  # a learned policy: say what it learnt from (and, shared, where)
+        shared = f" (an actor trained on {meta_record.get('scene', '?')}, acting for every aircraft)" if team else ""
+        table_text = f"{args.policy}{shared} learnt from {regime_text(regime)}\n\n{table_text}"
     print(table_text)
     meta = {
         "scene": args.scene,
@@ -180,9 +201,11 @@ def _play(args: argparse.Namespace) -> int:
         note = f"\nStopped by Ctrl-C after {len(results)} of {args.episodes} episodes: the table covers those.\n"
     (out / "summary.json").write_text(json.dumps(meta, indent=2))
     (out / "results.md").write_text(table_text + "\n" + note)
-    print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'}")
+    rows = " (one row per aircraft)" if team else ""
+    print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'}{rows}")
     if recorder is not None:
-        print(f"wrote {recorder.path} (episode log: deck-sim log info {recorder.path})")
+        print(f"wrote {recorder.path} (episode log{' of every aircraft' if team else ''}: deck-sim log info "
+              f"{recorder.path})")
     if stopped:
         log_note = "" if recorder is None else f"; {recorder.path} is closed, the unfinished episode incomplete"
         print(
@@ -192,6 +215,11 @@ def _play(args: argparse.Namespace) -> int:
         )
         return INTERRUPTED
     return 0
+
+
+def _aircraft(results: Sequence[EpisodeResult | TeamEpisodeResult]) -> list[EpisodeResult]:
+    """Every aircraft's result: the episodes' own, or every aircraft of every episode of several."""
+    return [r for x in results for r in (x.aircraft if hasattr(x, "aircraft") else (x,))]
 
 
 def format_team_summary(name: str, policy: str, predictor: str, summary: dict[str, float], wall: float) -> str:
@@ -219,83 +247,6 @@ def format_team_summary(name: str, policy: str, predictor: str, summary: dict[st
     lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
     lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
     return "\n".join(lines)
-
-
-def _play_team(args: argparse.Namespace) -> int:
-    """``_play`` for a scene of several aircraft: one team policy (``make_team_policy``) acts for all; the
-    tables count aircraft and episodes in which every one arrived, the log holds every aircraft."""
-    import deck_sim
-    from deck_sim.metrics import rate_interval, summarize, summarize_team
-    from deck_sim.policies import make_team_policy, team_policy_overrides
-    from deck_sim.policies.regimes import actor_regime, regime_text
-    from deck_sim.policies.team import team_policy_file
-    from deck_sim.rollout import run_team_episode
-
-    overrides, scene_set = _run_overrides(args, team_policy_overrides(args.policy, Path(args.scene).stem))
-    env = deck_sim.load(args.scene, seed=args.seed, **overrides)
-    predictor = env.task.predictor.name
-    policy = make_team_policy(args.policy, env, seed=args.seed)
-    out = _out_folder(args, scene_set)
-    results: list[TeamEpisodeResult] = []
-    stopped = False
-    t0 = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        label = "--out" if args.out else "the run's folder"
-        table = stack.enter_context(_EpisodeTable(out, label, aircraft=env.task.agent_names))
-        recorder = _open_run_recorder(args, env, out, team_policy_file(args.policy, env.task.spec.name))
-        if recorder is not None:
-            stack.enter_context(recorder)  # the log is finished even if a run fails or is stopped
-        bar = stack.enter_context(
-            progress(range(args.episodes), desc=f"{args.scene} {args.policy}", unit="ep", disable=args.quiet)
-        )
-        try:
-            for k in bar:
-                results.append(run_team_episode(env, policy, episode=k, recorder=recorder))
-                table.write(results)
-                aircraft = [r for team in results for r in team.aircraft]
-                reached = sum(r.outcome == "goal" for r in aircraft)
-                bar.set_postfix(reached=f"{100 * reached / len(aircraft):.0f}%")
-        except KeyboardInterrupt:
-            stopped = True
-        table.write(results)
-    wall = time.perf_counter() - t0
-    if not results:
-        print(f"deck-sim run: stopped (Ctrl-C) before the first episode finished; {out / 'episodes.csv'} holds only "
-              "its header" + (f", {recorder.path} the unfinished episode" if recorder is not None else ""),
-              file=sys.stderr)
-        return INTERRUPTED
-    aircraft = [r for team in results for r in team.aircraft]
-    low, high = rate_interval(sum(r.outcome == "goal" for r in aircraft), len(aircraft))
-    summary = {**summarize(aircraft), **summarize_team(results), "reached_low": low, "reached_high": high}
-    table_text = format_team_summary(args.scene, args.policy, predictor, summary, wall)
-    shared = getattr(policy, "policy", None)
-    meta_record = getattr(shared, "meta", None)
-    regime = actor_regime(meta_record) if isinstance(meta_record, dict) else None
-    if meta_record is not None:  # a learned actor shared by every aircraft: say what it learnt from, and where
-        trained = meta_record.get("scene", "?")
-        table_text = (f"{args.policy} (an actor trained on {trained}, acting for every aircraft) learnt from "
-                      f"{regime_text(regime)}\n\n{table_text}")
-    print(table_text)
-    meta = {
-        "scene": args.scene, "policy": args.policy, "predictor": predictor, "regime": regime, "seed": args.seed,
-        "episodes": args.episodes, "scene_set": scene_set, "deck_sim": deck_sim.__version__, "summary": summary,
-        "wall_s": wall,
-    }
-    note = ""
-    if stopped:
-        meta.update(stopped=True, episodes_finished=len(results))
-        note = f"\nStopped by Ctrl-C after {len(results)} of {args.episodes} episodes: the table covers those.\n"
-    (out / "summary.json").write_text(json.dumps(meta, indent=2))
-    (out / "results.md").write_text(table_text + "\n" + note)
-    print(f"wrote {out / 'results.md'}, {out / 'summary.json'}, {out / 'episodes.csv'} (one row per aircraft)")
-    if recorder is not None:
-        print(f"wrote {recorder.path} (episode log of every aircraft: deck-sim log info {recorder.path})")
-    if stopped:
-        log_note = "" if recorder is None else f"; {recorder.path} is closed, the unfinished episode incomplete"
-        print(f"deck-sim run: stopped (Ctrl-C) after {len(results)} of {args.episodes} episodes; their results are "
-              f"written to {out} (summary.json marked stopped){log_note}", file=sys.stderr)
-        return INTERRUPTED
-    return 0
 
 
 class _EpisodeTable:
