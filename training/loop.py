@@ -337,13 +337,14 @@ class Trainer:
 
     def slot_states(self) -> list[dict[str, Any]]:
         """What the checkpoint keeps of every environment: its episode, stage, return and length so far, the
-        actions taken in the episode (replayed on resume) and its current observation (the replay's check)."""
+        actions taken in the episode (replayed on resume; rows of 2, several aircraft's joint actions one after
+        another) and its current observation (the replay's check)."""
         return [
             {
                 "episode": s.episode,
                 "stage": s.stage,
-                "ret": s.ret,
-                "length": s.length,
+                "ret": float(s.ret),
+                "length": int(s.length),
                 "actions": torch.from_numpy(np.asarray(s.actions, dtype=np.float64).reshape(-1, 2)),
                 "obs": torch.from_numpy(np.array(s.obs, dtype=np.float32)),  # (a Ray actor's are read-only)
             }

@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import torch
 
 import deck_sim
 from deck_sim.metrics import outcome_of, summarize, summarize_team
@@ -326,21 +325,6 @@ class TeamTrainer(Trainer):
         return Demonstrations(**stack, episodes=cfg.demo_episodes * k, successes=reached)
 
     # -- checkpoints --------------------------------------------------------------------------------------------
-    def slot_states(self) -> list[dict[str, Any]]:
-        """Per environment: its episode, return and length so far, the joint actions (steps * k, 2) taken in the
-        episode and every aircraft's current observation."""
-        return [
-            {
-                "episode": s.episode,
-                "stage": s.stage,
-                "ret": float(s.ret),
-                "length": int(s.length),
-                "actions": torch.from_numpy(np.asarray(s.actions, dtype=np.float64).reshape(-1, 2)),
-                "obs": torch.from_numpy(np.array(s.obs, dtype=np.float32)),
-            }
-            for s in self.slots
-        ]
-
     def restore_slots(self, states: list[dict[str, Any]]) -> None:
         """Replay every environment's episode so far (its seed, its recorded joint actions, the planner asked at
         every step as it was), the aircraft's returns and which are done recomputed on the way."""

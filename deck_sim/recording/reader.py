@@ -307,40 +307,15 @@ class LoggedEpisode:
 
     def _decode_steps(self) -> list[StepFrame]:
         scene = self.scene
-        n = len(scene.mover_names)
         tf = {m.log_time: m for m, _ in self._messages.get(schema.TF, [])}
         pred = {m.log_time: m for m, _ in self._messages.get(schema.PREDICTION, [])}
         steps = []
         for m, state in self._messages.get(schema.STATE, []):
             if m.log_time not in tf:  # the step's /tf was lost with a truncated tail
                 continue
-            transforms = self._decode(tf[m.log_time])
-            poses = {
-                t.child_frame_id: (
-                    t.translation.x,
-                    t.translation.y,
-                    t.translation.z,
-                    t.rotation.w,
-                    t.rotation.x,
-                    t.rotation.y,
-                    t.rotation.z,
-                )
-                for t in transforms.transforms
-            }
-            try:
-                agent = np.array(poses[schema.AGENT_FRAME], dtype=np.float64)
-                movers = np.array([poses[name] for name in scene.mover_names], dtype=np.float64).reshape(n, 7)
-            except KeyError as err:
-                raise LogError(f"episode {self.index}: /tf at {m.log_time} ns lacks frame {err}") from None
-            p = self._decode(pred[m.log_time]) if m.log_time in pred else None
-            if p is not None:
-                lines = {e.id: e.lines[0].points for e in p.entities}
-                prediction = np.array(
-                    [[(q.x, q.y) for q in lines[f"prediction/{name}"][1:]] for name in scene.mover_names],
-                    dtype=np.float64,
-                ).reshape(n, -1, 2)
-            else:
-                prediction = np.zeros((n, 0, 2))
+            poses = self._poses(tf[m.log_time], [schema.AGENT_FRAME, *scene.mover_names])
+            agent, movers = poses[0], poses[1:]
+            prediction = self._lines(pred.get(m.log_time), list(scene.mover_names))
             action = None if state["action_x"] is None else np.array([state["action_x"], state["action_y"]])
             steps.append(
                 StepFrame(

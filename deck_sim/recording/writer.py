@@ -187,18 +187,7 @@ class EpisodeRecorder:
         self._check_open()
         if isinstance(scene, TeamSceneFrame):
             raise RecordingError(f"the scene has {len(scene.agent_names)} aircraft: call begin_team_episode")
-        if first.step != 0:
-            raise RecordingError(f"an episode starts with step 0, got step {first.step}")
-        if first.episode != scene.episode:
-            raise RecordingError(f"step of episode {first.episode} given with the scene of episode {scene.episode}")
-        if self._scene_frame is not None:  # the previous episode did not end
-            self._next_base = schema.next_base(self._base, self._last_ns)
-        self._base = self._next_base
-        self._scene_frame = scene
-        self._names = [*scene.mover_names]
-        self._transforms = _lines.Transforms(schema.ROOT_FRAME, [schema.AGENT_FRAME, *scene.mover_names])
-        ids = [f"prediction/{name}" for name in scene.mover_names]
-        self._prediction_lines = _lines.LineStrips(schema.ROOT_FRAME, ids, _IDENTITY_PB, 0.4, _PREDICTION_PB)
+        self._open_episode(scene, first.step, first.episode, [schema.AGENT_FRAME], [])
         self._path_line = _lines.LineStrips(schema.ROOT_FRAME, ["agent_path"], _IDENTITY_PB, 0.5, _PATH_PB)
         self._path_fields = bytearray()  # the encoded points of the agent's path so far
         self._positions: list[np.ndarray] = []
@@ -217,6 +206,57 @@ class EpisodeRecorder:
                           first.mover_poses)
         self.record_step(first)
 
+    def _open_episode(
+        self, scene: SceneFrame, step: int, episode: int, aircraft: list[str], predicted_aircraft: list[str]
+    ) -> None:
+        """The start every episode shares: its first step checked, its time base, and the encoders of its frames
+        (the ``aircraft`` frames, then the movers') and of its forecast lines (the movers', then
+        ``predicted_aircraft``'s)."""
+        if step != 0:
+            raise RecordingError(f"an episode starts with step 0, got step {step}")
+        if episode != scene.episode:
+            raise RecordingError(f"step of episode {episode} given with the scene of episode {scene.episode}")
+        if self._scene_frame is not None:  # the previous episode did not end
+            self._next_base = schema.next_base(self._base, self._last_ns)
+        self._base = self._next_base
+        self._scene_frame = scene
+        self._names = [*scene.mover_names]
+        self._transforms = _lines.Transforms(schema.ROOT_FRAME, [*aircraft, *scene.mover_names])
+        ids = [f"prediction/{name}" for name in (*scene.mover_names, *predicted_aircraft)]
+        self._prediction_lines = _lines.LineStrips(schema.ROOT_FRAME, ids, _IDENTITY_PB, 0.4, _PREDICTION_PB)
+
+    def _write_motion(self, t_ns: int, poses: np.ndarray, now_xy: np.ndarray, prediction: np.ndarray) -> bytes:
+        """``/tf`` of every frame's pose and ``/prediction`` of every predicted vehicle (where it is now, then its
+        N predicted positions); the step's encoded stamp."""
+        self._last_ns = t_ns
+        stamp = _lines.stamp(t_ns)
+        self._tf.log(self._transforms.encode(stamp, poses), log_time=t_ns)
+        n, horizon = prediction.shape[:2]
+        if horizon > 0 and n > 0:
+            xyz = np.empty((n, horizon + 1, 3))
+            xyz[:, 0, :2], xyz[:, 1:, :2], xyz[..., 2] = now_xy, prediction, _LINE_Z
+            fields = _lines.points(xyz)
+            size = len(fields) // n
+            parts = [fields[i * size : (i + 1) * size] for i in range(n)]
+            self._prediction.log(self._prediction_lines.encode(stamp, parts), log_time=t_ns)
+        return stamp
+
+    def _fallback_event(self, t_ns: int, episode: int, step: int, count: int, what: str) -> None:
+        if count:
+            self._event(
+                t_ns,
+                "predictor_fallback",
+                LogLevel.Warning,
+                f"episode {episode} step {step}: the predictor fell back to constant velocity for {count} {what}",
+            )
+
+    def _close_episode(self, t_ns: int) -> None:
+        """The end every episode shares, after its events: flush, the next time base, no episode open."""
+        self._writer.flush()
+        self._next_base = schema.next_base(self._base, t_ns)
+        self._scene_frame = None
+        self.episodes_completed += 1
+
     def record_step(self, frame: StepFrame) -> None:
         """Write one control step (``/tf``, ``/prediction``, ``/agent/path``, ``/agent/state``, events)."""
         self._check_open()
@@ -230,18 +270,8 @@ class EpisodeRecorder:
         if frame.mover_poses.shape[0] != len(self._names):
             raise RecordingError(f"step has {frame.mover_poses.shape[0]} movers, the scene has {len(self._names)}")
         t_ns = schema.log_time(self._base, frame.time)
-        self._last_ns = t_ns
         poses = np.vstack([frame.agent_pose[None], frame.mover_poses])
-        stamp = _lines.stamp(t_ns)
-        self._tf.log(self._transforms.encode(stamp, poses), log_time=t_ns)
-        n, horizon = frame.prediction.shape[:2]
-        if horizon > 0 and n > 0:  # each mover's line: where it is now, then its N predicted positions
-            xyz = np.empty((n, horizon + 1, 3))
-            xyz[:, 0, :2], xyz[:, 1:, :2], xyz[..., 2] = frame.mover_xy, frame.prediction, _LINE_Z
-            fields = _lines.points(xyz)
-            size = len(fields) // n
-            parts = [fields[i * size : (i + 1) * size] for i in range(n)]
-            self._prediction.log(self._prediction_lines.encode(stamp, parts), log_time=t_ns)
+        stamp = self._write_motion(t_ns, poses, frame.mover_xy, frame.prediction)
         self._path_fields += _lines.points([frame.agent_pose[0], frame.agent_pose[1], _LINE_Z])
         self._positions.append(frame.agent_pose[:2].copy())
         self._path.log(self._path_line.encode(stamp, [bytes(self._path_fields)]), log_time=t_ns)
@@ -249,14 +279,7 @@ class EpisodeRecorder:
         self._state.log(json.dumps(schema.state_record(frame)).encode(), log_time=t_ns)
         if frame.step > 0:
             self._return += float(terms["total"])
-        if frame.predictor_fallbacks:
-            self._event(
-                t_ns,
-                "predictor_fallback",
-                LogLevel.Warning,
-                f"episode {frame.episode} step {frame.step}: the predictor fell back to constant velocity for "
-                f"{frame.predictor_fallbacks} mover(s)",
-            )
+        self._fallback_event(t_ns, frame.episode, frame.step, frame.predictor_fallbacks, "mover(s)")
         if frame.last:
             self._end_episode(frame, t_ns)
 
@@ -292,10 +315,7 @@ class EpisodeRecorder:
             f"episode {k} end: {outcome}, {frame.step} steps, {t:.1f} s, return {self._return:.2f}, "
             f"path {path_length(np.array(self._positions)):.1f} m",
         )
-        self._writer.flush()
-        self._next_base = schema.next_base(self._base, t_ns)
-        self._scene_frame = None
-        self.episodes_completed += 1
+        self._close_episode(t_ns)
 
     # -- episodes of several aircraft -----------------------------------------------------------------------
     def _agent_channels(self, name: str) -> tuple[foxglove.Channel, foxglove.Channel]:
@@ -322,21 +342,10 @@ class EpisodeRecorder:
         self._check_open()
         if not isinstance(scene, TeamSceneFrame):
             raise RecordingError("the scene has one aircraft: call begin_episode")
-        if first.step != 0:
-            raise RecordingError(f"an episode starts with step 0, got step {first.step}")
-        if first.episode != scene.episode:
-            raise RecordingError(f"step of episode {first.episode} given with the scene of episode {scene.episode}")
         if [a.name for a in first.aircraft] != list(scene.agent_names):
             raise RecordingError(f"step of aircraft {[a.name for a in first.aircraft]}, scene of {scene.agent_names}")
-        if self._scene_frame is not None:  # the previous episode did not end
-            self._next_base = schema.next_base(self._base, self._last_ns)
-        self._base = self._next_base
-        self._scene_frame = scene
         names = list(scene.agent_names)
-        self._names = [*scene.mover_names]
-        self._transforms = _lines.Transforms(schema.ROOT_FRAME, [*names, *scene.mover_names])
-        ids = [f"prediction/{name}" for name in (*scene.mover_names, *names)]
-        self._prediction_lines = _lines.LineStrips(schema.ROOT_FRAME, ids, _IDENTITY_PB, 0.4, _PREDICTION_PB)
+        self._open_episode(scene, first.step, first.episode, names, names)
         self._team_paths = [
             (_lines.LineStrips(schema.ROOT_FRAME, [f"{name}_path"], _IDENTITY_PB, 0.5, _PATH_PB), bytearray())
             for name in names
@@ -371,21 +380,9 @@ class EpisodeRecorder:
                 f"{len(self._names)} and {len(scene.agent_names)}"
             )
         t_ns = schema.log_time(self._base, frame.time)
-        self._last_ns = t_ns
         poses = np.vstack([*(a.pose[None] for a in frame.aircraft), frame.mover_poses])
-        stamp = _lines.stamp(t_ns)
-        self._tf.log(self._transforms.encode(stamp, poses), log_time=t_ns)
-        rows, horizon = frame.prediction.shape[:2]
-        if horizon > 0 and rows > 0:  # movers, then aircraft: where each is now, then its N predicted positions
-            xyz = np.empty((rows, horizon + 1, 3))
-            now = np.vstack([frame.mover_xy, *(a.pose[None, :2] for a in frame.aircraft)])
-            xyz[:, 0, :2], xyz[:, 1:, :2], xyz[..., 2] = now, frame.prediction, _LINE_Z
-            fields = _lines.points(xyz)
-            size = len(fields) // rows
-            self._prediction.log(
-                self._prediction_lines.encode(stamp, [fields[i * size : (i + 1) * size] for i in range(rows)]),
-                log_time=t_ns,
-            )
+        now = np.vstack([frame.mover_xy, *(a.pose[None, :2] for a in frame.aircraft)])  # (the forecasts' order)
+        stamp = self._write_motion(t_ns, poses, now, frame.prediction)
         for i, a in enumerate(frame.aircraft):
             path_channel, state_channel = self._agent_channels(a.name)
             line, points = self._team_paths[i]
@@ -398,14 +395,7 @@ class EpisodeRecorder:
             if a.done and not self._team_done[i]:
                 self._team_done[i] = True
                 self._aircraft_outcome(t_ns, frame, a, outcome_of({**vars(a), "diverged": False}, False))
-        if frame.predictor_fallbacks:
-            self._event(
-                t_ns,
-                "predictor_fallback",
-                LogLevel.Warning,
-                f"episode {frame.episode} step {frame.step}: the predictor fell back to constant velocity for "
-                f"{frame.predictor_fallbacks} vehicle(s)",
-            )
+        self._fallback_event(t_ns, frame.episode, frame.step, frame.predictor_fallbacks, "vehicle(s)")
         if frame.last:
             for i, a in enumerate(frame.aircraft):
                 if not self._team_done[i]:
@@ -419,10 +409,7 @@ class EpisodeRecorder:
                 f"{frame.step} steps, {frame.time:.1f} s, returns "
                 + ", ".join(f"{a.name} {r:.2f}" for a, r in zip(frame.aircraft, self._team_returns, strict=True)),
             )
-            self._writer.flush()
-            self._next_base = schema.next_base(self._base, t_ns)
-            self._scene_frame = None
-            self.episodes_completed += 1
+            self._close_episode(t_ns)
 
     def _aircraft_outcome(self, t_ns: int, frame: TeamStepFrame, a: AircraftStep, outcome: str) -> None:
         k, t, name = frame.episode, frame.time, a.name
