@@ -54,6 +54,11 @@ def test_rescoring_a_team_log_gives_the_live_numbers_bit_for_bit(team_log):
         for a, b in zip(again.aircraft, result.aircraft, strict=True):
             assert _same(a, b)
         assert len(ep.team_steps) == max(r.steps for r in result.aircraft) + 1
+        for name, r in zip(ep.scene.agent_names, result.aircraft, strict=True):  # per aircraft
+            assert _same(log.rescore(ep.index, aircraft=name).result, r)
+        assert _same(log.rescore_team(ep.index), result)
+        with pytest.raises(LogError, match="name one to score"):
+            ep.rescore()
     outcomes = {r.outcome for team in live for r in team.aircraft}
     assert "goal" in outcomes and len(outcomes) > 1  # the episodes cover more than one kind of ending
 

@@ -342,15 +342,27 @@ class LoggedEpisode:
             )
         return steps
 
-    def rescore(self) -> EpisodeScore:
+    def rescore(self, aircraft: str | None = None) -> EpisodeScore:
         """Success, path length, turning angle, clearance and prediction ADE/FDE from the log alone.
 
         The result equals, field for field, what ``run_episode`` measured live (same float64 inputs, same
-        functions, same order of summation).
+        functions, same order of summation). In an episode of several aircraft, ``aircraft`` names the one to score:
+        its result is its row of ``rescore_team`` (the live ``run_team_episode``'s), without prediction errors
+        (NaN: what it saw forecast were the others' choices).
 
         Raises:
-            LogError: the episode is incomplete.
+            LogError: the episode is incomplete, or ``aircraft`` is missing or unknown in an episode of several (or
+                given in an episode of one).
         """
+        if self.team:
+            names = list(self.scene.agent_names)
+            if aircraft not in names:
+                raise LogError(f"episode {self.index} has aircraft {', '.join(names)}: name one to score "
+                               f"(rescore(aircraft=...)), or score them all with rescore_team(), not {aircraft!r}")
+            result = self.rescore_team().aircraft[names.index(aircraft)]
+            return EpisodeScore(result=result, ade=float("nan"), fde=float("nan"), prediction_samples=0)
+        if aircraft is not None:
+            raise LogError(f"episode {self.index} has one aircraft: rescore() takes no aircraft, got {aircraft!r}")
         if not self.complete:
             raise LogError(f"episode {self.index} is incomplete (the log stops before its end): it cannot be scored")
         steps = self.steps
@@ -541,9 +553,13 @@ class EpisodeLog:
         for ep in self._episodes if episode is None else [self.episode(episode)]:
             yield from ep.events
 
-    def rescore(self, episode: int) -> EpisodeScore:
-        """``LoggedEpisode.rescore`` of one episode."""
-        return self.episode(episode).rescore()
+    def rescore(self, episode: int, aircraft: str | None = None) -> EpisodeScore:
+        """``LoggedEpisode.rescore`` of one episode (of one of its aircraft, where it has several)."""
+        return self.episode(episode).rescore(aircraft)
+
+    def rescore_team(self, episode: int) -> TeamEpisodeResult:
+        """``LoggedEpisode.rescore_team`` of one episode of several aircraft."""
+        return self.episode(episode).rescore_team()
 
     @property
     def duration(self) -> float:
