@@ -58,8 +58,8 @@ def make_trainer(config: TrainConfig, run_dir: str | os.PathLike[str], **kwargs:
 
 
 class TeamEnvs:
-    """``n`` multi-aircraft environments stepped in the learner's process, each with its full-knowledge
-    prioritised planner when it labels the aircraft's steps.
+    """``n`` multi-aircraft environments stepped in the learner's process, each with its teacher (``teacher``)
+    when a planner labels the aircraft's steps.
 
     Observations are flat float32 rows (k, ``layout.dim``), one per aircraft, in ``layout``'s key order (the
     single-agent Gymnasium adapter's flattening), so an exported actor reads them as ``LearnedPolicy`` does.
