@@ -38,6 +38,16 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _two_columns(name: str, policy: str, predictor: str, rows: list[tuple[str, str]]) -> str:
+    """A run's metric rows (label, value) as a two-column Markdown table headed by its scene, policy and
+    predictor."""
+    width = max(len(r[0]) for r in rows)
+    head = f"| {'scene ' + name + ', policy ' + policy + ', predictor ' + predictor:<{width + 14}} |"
+    lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
+    lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
+    return "\n".join(lines)
+
+
 def format_summary(name: str, policy: str, predictor: str, summary: dict[str, float], wall: float) -> str:
     """The metrics of a run (``deck_sim.metrics.summarize``) as a two-column Markdown table."""
     rows = [
@@ -55,11 +65,7 @@ def format_summary(name: str, policy: str, predictor: str, summary: dict[str, fl
         ("minimum clearance", f"{summary['min_clearance']:.2f} m"),
         ("wall time", f"{wall:.1f} s"),
     ]
-    width = max(len(r[0]) for r in rows)
-    head = f"| {'scene ' + name + ', policy ' + policy + ', predictor ' + predictor:<{width + 14}} |"
-    lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
-    lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
-    return "\n".join(lines)
+    return _two_columns(name, policy, predictor, rows)
 
 
 INTERRUPTED = 130
@@ -242,11 +248,7 @@ def format_team_summary(name: str, policy: str, predictor: str, summary: dict[st
         ("mean reward per aircraft", f"{summary['mean_reward']:.1f}"),
         ("wall time", f"{wall:.1f} s"),
     ]
-    width = max(len(r[0]) for r in rows)
-    head = f"| {'scene ' + name + ', policy ' + policy + ', predictor ' + predictor:<{width + 14}} |"
-    lines = [head, f"|{'-' * (width + 2)}|{'-' * 13}|"]
-    lines += [f"| {k:<{width}} | {v:>11} |" for k, v in rows]
-    return "\n".join(lines)
+    return _two_columns(name, policy, predictor, rows)
 
 
 class _EpisodeTable:

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from deck_sim.geometry import Footprints
-from deck_sim.types import SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
+from deck_sim.types import AircraftStep, SceneFrame, StepFrame, TeamSceneFrame, TeamStepFrame
 
 FORMAT = "deck_sim.episode_log/1"
 """Value of the ``format`` key of the ``deck_sim`` metadata record."""
@@ -153,15 +153,27 @@ def from_number(x: float | str | None) -> float:
 
 def state_record(frame: StepFrame) -> dict[str, Any]:
     """The ``/agent/state`` message of a step (``STATE_SCHEMA``); floats are written exactly by ``json``."""
-    action, terms = frame.action, frame.reward_terms
+    return _record(frame, frame.agent_pose[:2], frame)
+
+
+def aircraft_state_record(frame: TeamStepFrame, i: int) -> dict[str, Any]:
+    """The ``/agent/<name>/state`` message of aircraft ``i`` at a step of several aircraft (``STATE_SCHEMA``): its
+    name first, ``x``, ``y`` where its path stands, ``done`` last."""
+    a = frame.aircraft[i]
+    return {"agent": a.name, **_record(frame, a.track_xy, a), "done": bool(a.done)}
+
+
+def _record(frame: StepFrame | TeamStepFrame, xy: np.ndarray, own: StepFrame | AircraftStep) -> dict[str, Any]:
+    """The fields of a state message: the step's (``frame``) and an aircraft's own (``own``, at ``xy``)."""
+    action, terms = own.action, own.reward_terms
     return {
         "episode": int(frame.episode),
         "step": int(frame.step),
         "time": float(frame.time),
-        "x": float(frame.agent_pose[0]),
-        "y": float(frame.agent_pose[1]),
-        "heading": float(frame.heading),
-        "speed": float(frame.speed),
+        "x": float(xy[0]),
+        "y": float(xy[1]),
+        "heading": float(own.heading),
+        "speed": float(own.speed),
         "action_x": None if action is None else float(action[0]),
         "action_y": None if action is None else float(action[1]),
         "r1": float(terms["r1"]),
@@ -169,48 +181,15 @@ def state_record(frame: StepFrame) -> dict[str, Any]:
         "r3": float(terms["r3"]),
         "r4": float(terms["r4"]),
         "total": float(terms["total"]),
-        "distance_to_goal": number(frame.distance_to_goal),
-        "min_clearance": number(frame.min_clearance),
+        "distance_to_goal": number(own.distance_to_goal),
+        "min_clearance": number(own.min_clearance),
         "predictor_fallbacks": int(frame.predictor_fallbacks),
-        "collision": frame.collision,
-        "reached_goal": bool(frame.reached_goal),
-        "left_surface": bool(frame.left_surface),
+        "collision": own.collision,
+        "reached_goal": bool(own.reached_goal),
+        "left_surface": bool(own.left_surface),
         "diverged": bool(frame.diverged),
         "last": bool(frame.last),
-        "discount": None if frame.discount is None else float(frame.discount),
-    }
-
-
-def aircraft_state_record(frame: TeamStepFrame, i: int) -> dict[str, Any]:
-    """The ``/agent/<name>/state`` message of aircraft ``i`` at a step of several aircraft (``STATE_SCHEMA``)."""
-    a = frame.aircraft[i]
-    terms = a.reward_terms
-    return {
-        "agent": a.name,
-        "episode": int(frame.episode),
-        "step": int(frame.step),
-        "time": float(frame.time),
-        "x": float(a.track_xy[0]),
-        "y": float(a.track_xy[1]),
-        "heading": float(a.heading),
-        "speed": float(a.speed),
-        "action_x": None if a.action is None else float(a.action[0]),
-        "action_y": None if a.action is None else float(a.action[1]),
-        "r1": float(terms["r1"]),
-        "r2": float(terms["r2"]),
-        "r3": float(terms["r3"]),
-        "r4": float(terms["r4"]),
-        "total": float(terms["total"]),
-        "distance_to_goal": number(a.distance_to_goal),
-        "min_clearance": number(a.min_clearance),
-        "predictor_fallbacks": int(frame.predictor_fallbacks),
-        "collision": a.collision,
-        "reached_goal": bool(a.reached_goal),
-        "left_surface": bool(a.left_surface),
-        "diverged": bool(frame.diverged),
-        "last": bool(frame.last),
-        "discount": None if a.discount is None else float(a.discount),
-        "done": bool(a.done),
+        "discount": None if own.discount is None else float(own.discount),
     }
 
 
