@@ -122,6 +122,9 @@ class Trainer:
         ray_address: the Ray cluster of ``ray`` (None: a local one).
     """
 
+    slot_class: type[_Slot] = _Slot
+    """What each environment's slot records (a subclass may record more)."""
+
     def __init__(
         self,
         config: TrainConfig,
@@ -156,7 +159,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         torch.use_deterministic_algorithms(True)
         self.rng = np.random.default_rng(cfg.seed)
-        self.slots = [_Slot(i) for i in range(cfg.num_envs)]
+        self.slots = [self.slot_class(i) for i in range(cfg.num_envs)]
         self.collected = cfg.num_envs
         """Environment steps (transitions) the last collection added."""
         self.layout = self._agent_layout()

@@ -156,29 +156,20 @@ def _refused(config: TrainConfig) -> list[str]:
 class TeamTrainer(Trainer):
     """Trains one shared DDPG / MDDPG actor for every aircraft of a multi-aircraft scene (see the module).
 
-    Args are ``Trainer``'s; ``backend`` must be ``local`` and ``workers`` None or 0 (the environments step in the
-    learner's process).
+    Args are ``Trainer``'s (by keyword after ``run_dir``); ``backend`` must be ``local`` and ``workers`` None or 0
+    (the environments step in the learner's process).
 
     Raises:
         ConfigError: the scene has one aircraft, or the config asks for what several aircraft do not support.
     """
 
-    def __init__(
-        self,
-        config: TrainConfig,
-        run_dir: str | os.PathLike[str],
-        resume: bool = False,
-        progress: bool = True,
-        backend: str = "local",
-        workers: int | None = None,
-        ray_address: str | None = None,
-    ) -> None:
+    slot_class = _TeamSlot
+
+    def __init__(self, config: TrainConfig, run_dir: str | os.PathLike[str], **kwargs: Any) -> None:
         config = config.validate()
-        self._check(config, backend, workers)
+        self._check(config, kwargs.get("backend", "local"), kwargs.get("workers"))
         self.k = load_scene(config.scene, **config.scene_overrides).agents.count
-        super().__init__(config, run_dir, resume=resume, progress=progress, backend=backend, workers=0,
-                         ray_address=ray_address)
-        self.slots = [_TeamSlot(i) for i in range(config.num_envs)]
+        super().__init__(config, run_dir, **{**kwargs, "workers": 0})
 
     @staticmethod
     def _check(config: TrainConfig, backend: str, workers: int | None) -> None:
