@@ -4,8 +4,9 @@ against stable-baselines3's DDPG.
 Recipe (``--parts recipe``): the MDDPG config of ``load_recipe(--recipe)`` (its networks, environments, update
 ratio, planner labels and scene fields) with ``--demos`` demonstration episodes, no pre-training, evaluations or
 checkpoints, and its first update at step ``--warmup``; each backend and worker count of ``--backends`` and
-``--workers`` (``local`` with 0 workers steps inline) runs the loop to ``--warmup`` steps, then is timed over the
-next ``--steps``, the full loop (acting, stepping, planner labels, updates, replay) included. The variants alternate
+``--workers`` (``local`` with 0 workers steps inline) and each learner arithmetic of ``--precisions``
+(``TrainConfig.learner_precision``) runs the loop to ``--warmup`` steps, then is timed over the next ``--steps``, the
+full loop (acting, stepping, planner labels, updates, replay) included. The variants alternate
 in rounds so that machine load falls on all; the medians and their ratios to the first variant are printed.
 
 SB3 (``--parts sb3``): both learn on the same environment (the scene's Gymnasium adapter, MPC prediction in the
@@ -14,7 +15,7 @@ update per environment step after the same number of random steps. Ours runs twi
 process (the physics overlaps the updates on a second core) and inline (one core, like SB3). Single-threaded torch.
 
     python benchmarks/train_speed.py [--parts recipe,sb3] [--recipe deck1] [--backends local,ray] [--workers 1,2]
-        [--steps 1600] [--warmup 400] [--rounds 2] [--scene deck1]
+        [--precisions float32,bfloat16] [--steps 1600] [--warmup 400] [--rounds 2] [--scene deck1]
 """
 
 from __future__ import annotations
@@ -39,9 +40,11 @@ from training.loop import Trainer  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
 
-def recipe_config(recipe: str, warmup: int, demos: int, seed: int) -> TrainConfig:
+def recipe_config(recipe: str, warmup: int, demos: int, seed: int, precision: str | None = None) -> TrainConfig:
     """The recipe's MDDPG config, trimmed to a timed window: ``demos`` demonstrations, no pre-training,
-    evaluations or checkpoints, the first update at ``warmup`` steps."""
+    evaluations or checkpoints, the first update at ``warmup`` steps; ``precision`` replaces the recipe's
+    ``learner_precision`` when given."""
+    extra = {} if precision is None else {"learner_precision": precision}
     return load_recipe(recipe).config(
         "mddpg",
         seed,
@@ -53,6 +56,7 @@ def recipe_config(recipe: str, warmup: int, demos: int, seed: int) -> TrainConfi
         log_every=10**9,
         polish_epochs=0,
         dagger_steps=0,
+        **extra,
     )
 
 
@@ -71,33 +75,41 @@ def timed(cfg: TrainConfig, warmup: int, steps: int, **runner: object) -> float:
 
 
 def recipe_part(args: argparse.Namespace) -> None:
-    variants = [(b, int(w)) for b in args.backends.split(",") for w in args.workers.split(",")]
+    precisions = args.precisions.split(",") if args.precisions else [None]
+    variants = [(b, int(w), p) for b in args.backends.split(",") for w in args.workers.split(",") for p in precisions]
     skipped = [v for v in variants if v[0] == "ray" and v[1] == 0]
     if skipped:
         print("ray with 0 workers skipped: the ray backend acts in at least 1 worker (local 0 steps inline)")
         variants = [v for v in variants if v not in skipped]
-    if any(b == "ray" for b, _ in variants):
+    if any(b == "ray" for b, _, _ in variants):
         import ray
 
-        ray.init(num_cpus=max(w for _, w in variants), include_dashboard=False, log_to_driver=False)
-    cfg = recipe_config(args.recipe, args.warmup, args.demos, seed=0)
+        ray.init(num_cpus=max(w for _, w, _ in variants), include_dashboard=False, log_to_driver=False)
+    configs = {p: recipe_config(args.recipe, args.warmup, args.demos, seed=0, precision=p) for p in precisions}
+    cfg = configs[precisions[0]]
     print(
         f"recipe {args.recipe} (mddpg): {cfg.num_envs} environments, {cfg.updates_per_step} updates per step, "
         f"actor {cfg.actor_arch}, {args.demos} demonstrations, first update at {args.warmup} steps, "
-        f"{args.steps} timed steps, {args.rounds} rounds"
+        f"learner {'/'.join(c.learner_precision for c in configs.values())}, {args.steps} timed steps, "
+        f"{args.rounds} rounds"
     )
-    rates: dict[tuple[str, int], list[float]] = {v: [] for v in variants}
+
+    def name(variant: tuple[str, int, str | None]) -> str:
+        backend, workers, precision = variant
+        inline = " (inline)" if not workers else ""
+        return f"{backend} {workers} workers{inline}, {configs[precision].learner_precision} learner"
+
+    rates: dict[tuple[str, int, str | None], list[float]] = {v: [] for v in variants}
     for r in range(args.rounds):
-        for backend, workers in variants:
-            rate = timed(cfg, args.warmup, args.steps, backend=backend, workers=workers)
-            rates[backend, workers].append(rate)
-            print(f"round {r}: {backend} {workers} workers: {rate:.1f} env steps/s "
-                  f"(load {os.getloadavg()[0]:.1f})", flush=True)
+        for variant in variants:
+            backend, workers, precision = variant
+            rate = timed(configs[precision], args.warmup, args.steps, backend=backend, workers=workers)
+            rates[variant].append(rate)
+            print(f"round {r}: {name(variant)}: {rate:.1f} env steps/s (load {os.getloadavg()[0]:.1f})", flush=True)
     first = statistics.median(rates[variants[0]])
-    for (backend, workers), values in rates.items():
+    for variant, values in rates.items():
         m = statistics.median(values)
-        print(f"median: {backend} backend, {workers} workers{' (inline)' if not workers else ''}: {m:.1f} env steps/s, "
-              f"{m / first:.2f}x {variants[0][0]} {variants[0][1]}")
+        print(f"median: {name(variant)}: {m:.1f} env steps/s, {m / first:.2f}x {name(variants[0])}")
 
 
 def ours(scene: str, steps: int, warmup: int, seed: int, worker: bool) -> float:
@@ -187,6 +199,10 @@ def main() -> None:
     parser.add_argument("--recipe", default="deck1", help="the shipped recipe of the recipe part")
     parser.add_argument("--backends", default="local", help="backends of the recipe part: local and/or ray")
     parser.add_argument("--workers", default="1,2", help="worker counts of the recipe part (local 0: inline)")
+    parser.add_argument(
+        "--precisions", default="", help="learner arithmetics of the recipe part, e.g. float32,bfloat16 (default: "
+        "the recipe's)"
+    )
     parser.add_argument("--demos", type=int, default=4, help="demonstration episodes of the recipe part")
     parser.add_argument("--scene", default="deck1", help="the scene of the SB3 part")
     parser.add_argument("--steps", type=int, default=1600, help="timed environment steps per measurement")

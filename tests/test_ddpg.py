@@ -127,6 +127,57 @@ def test_cloning_term_and_q_normalisation_by_hand():
     np.testing.assert_allclose(plain.update(both)["bc_loss"], ((np.tanh(0.5) + 0.5) ** 2 + 1.0) / 2.0, rtol=1e-6)
 
 
+def _hidden_and_output_dtypes(agent: DDPGAgent, obs: torch.Tensor, action: torch.Tensor) -> list[torch.dtype]:
+    """The dtypes of the first critic's linear layers' outputs in one forward pass inside ``agent.precision()``."""
+    seen: list[torch.dtype] = []
+    hooks = [m.register_forward_hook(lambda _m, _i, out: seen.append(out.dtype))
+             for m in agent.critic.heads[0] if isinstance(m, torch.nn.Linear)]
+    try:
+        with agent.precision():
+            q = agent.critic.first(obs, action)
+    finally:
+        for h in hooks:
+            h.remove()
+    return [*seen, q.dtype]
+
+
+def test_bfloat16_updates_run_the_hidden_layers_in_bfloat16_and_keep_outputs_and_weights_float32():
+    torch.manual_seed(0)
+    obs, action = torch.randn(64, 6), torch.rand(64, 2) * 2 - 1
+    batch = _batch(obs.tolist(), action.tolist(), torch.randn(64).tolist(), torch.randn(64, 6).tolist(), [0.0] * 64)
+    agents = {}
+    for precision in ("float32", "bfloat16"):
+        torch.manual_seed(1)
+        agents[precision] = DDPGAgent(6, 2, TrainConfig(hidden=(64, 64), learner_precision=precision))
+    full, half = agents["float32"], agents["bfloat16"]
+    assert _hidden_and_output_dtypes(full, obs, action) == [torch.float32] * 4
+    assert _hidden_and_output_dtypes(half, obs, action) == [torch.bfloat16, torch.bfloat16, torch.float32,
+                                                           torch.float32]
+    with half.precision():
+        assert half.actor(obs).dtype == torch.float32
+    # the same networks: the two precisions agree to bfloat16's resolution, and differ beyond it
+    q_full = full.critic.first(obs, action)
+    with half.precision():
+        q_half = half.critic.first(obs, action)
+    assert torch.allclose(q_full, q_half, atol=0.02) and not torch.equal(q_full, q_half)
+    for _ in range(3):
+        stats = {p: a.update(batch) for p, a in agents.items()}
+    assert stats["bfloat16"]["critic_loss"] == pytest.approx(stats["float32"]["critic_loss"], rel=0.05)
+    assert all(p.dtype == torch.float32 for p in half.critic.parameters())
+    assert all(p.dtype == torch.float32 for p in half.actor.parameters())
+    assert {a.dtype for a in half.export_actor().values() if a.dtype.kind == "f"} == {np.dtype(np.float32)}
+    # acting is float32 either way: the exported actor acts exactly as the live one outside the updates
+    np.testing.assert_array_equal(half.act(obs.numpy()), half.acting()(obs.numpy()))
+    assert not torch.is_autocast_enabled("cpu")
+
+
+def test_an_unknown_learner_precision_is_refused_by_name():
+    from training.config import ConfigError
+
+    with pytest.raises(ConfigError, match="learner_precision: expected one of float32, bfloat16, got 'float16'"):
+        make_config("reward", learner_precision="float16")
+
+
 def test_soft_update_is_exact():
     torch.manual_seed(0)
     source, target = torch.nn.Linear(3, 2), torch.nn.Linear(3, 2)

@@ -33,6 +33,7 @@ NOISES = ("gaussian", "ou")
 TEACHER_VIEWS = ("full", "observation")
 """What a teaching planner may read (``TrainConfig.teacher_view``)."""
 ACTOR_ARCHS = ("mlp", "sets")
+LEARNER_PRECISIONS = ("float32", "bfloat16")
 
 
 class ConfigError(ValueError):
@@ -166,6 +167,12 @@ class TrainConfig:
     """Soft target update rate theta' <- tau theta + (1 - tau) theta' (eq. 6)."""
     batch_size: int = 256
     """Transitions per update."""
+    learner_precision: str = "float32"
+    """The arithmetic of the updates' hidden layers: ``float32``, or ``bfloat16`` (CPU autocast: the hidden layers'
+    matrix products in bfloat16 with float32 accumulation, the weights, optimiser state, every network's output
+    layer, the TD target and the losses in float32). ``bfloat16`` is faster on a CPU with native bfloat16
+    instructions (``benchmarks/train_speed.py --precisions``, docs/benchmarks.md). Acting, evaluation and the
+    exported actors stay float32 either way."""
     buffer_size: int = 300_000
     """Replay capacity in transitions (demonstrations included; they are never overwritten)."""
     learning_starts: int = 2_000
@@ -397,6 +404,9 @@ class TrainConfig:
             raise ConfigError(f"hidden: expected positive layer widths, got {self.hidden!r}")
         if self.actor_arch not in ACTOR_ARCHS:
             raise ConfigError(f"actor_arch: expected one of {', '.join(ACTOR_ARCHS)}, got {self.actor_arch!r}")
+        if self.learner_precision not in LEARNER_PRECISIONS:
+            raise ConfigError(f"learner_precision: expected one of {', '.join(LEARNER_PRECISIONS)}, "
+                              f"got {self.learner_precision!r}")
         if not self.set_hidden or any(int(h) < 1 for h in self.set_hidden):
             raise ConfigError(f"set_hidden: expected positive layer widths, got {self.set_hidden!r}")
         if any(int(h) < 1 for h in self.polish_hidden):

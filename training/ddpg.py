@@ -124,8 +124,14 @@ class DDPGAgent:
         discount = cfg.gamma if batch.discount is None else batch.discount  # (an n-step batch's own gamma^m)
         return cfg.reward_scale * batch.reward + discount * (1.0 - batch.terminated) * q_next
 
+    def precision(self) -> torch.autocast:
+        """The context the updates run in: a bfloat16 CPU autocast under ``learner_precision = "bfloat16"``
+        (``training.networks.MLP`` keeps every output layer in float32), a disabled one otherwise."""
+        return torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.config.learner_precision == "bfloat16")
+
     def update(self, batch: Batch, clone_only: bool = False) -> dict[str, float]:
-        """One critic update, and (every ``policy_delay`` updates) one actor update and soft target updates.
+        """One critic update, and (every ``policy_delay`` updates) one actor update and soft target updates, in the
+        arithmetic of ``learner_precision`` (``precision``).
 
         ``clone_only`` (pre-training on demonstrations) updates the actor by the cloning term alone.
 
@@ -134,6 +140,10 @@ class DDPGAgent:
         The first critic's TD errors of the batch (B,) are left in ``last_td_error`` (prioritised replay's
         priorities).
         """
+        with self.precision():
+            return self._update(batch, clone_only)
+
+    def _update(self, batch: Batch, clone_only: bool) -> dict[str, float]:
         cfg = self.config
         y = self.td_target(batch)
         obs = self.norm(batch.obs)
@@ -226,7 +236,8 @@ class DDPGAgent:
             total = 0.0
             for i in range(per_epoch):
                 idx = order[i * cfg.batch_size : (i + 1) * cfg.batch_size]
-                loss = ((self.actor(x[idx]) - y[idx]) ** 2).sum(-1).mean()
+                with self.precision():
+                    loss = ((self.actor(x[idx]) - y[idx]) ** 2).sum(-1).mean()
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 if cfg.grad_clip > 0:

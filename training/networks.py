@@ -17,7 +17,28 @@ from torch import nn
 from deck_sim.policies import set_indices
 
 
-def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None) -> nn.Sequential:
+class MLP(nn.Sequential):
+    """``nn.Sequential`` whose last linear layer runs in float32 under a bfloat16 autocast: the hidden layers'
+    matrix products take the fast path, while the outputs (Q values, actions, a set encoder's features) keep
+    float32's resolution. Without autocast it is ``nn.Sequential``'s forward, the same numbers."""
+
+    def __init__(self, *layers: nn.Module) -> None:
+        super().__init__(*layers)
+        self._last_linear = max(i for i, m in enumerate(layers) if isinstance(m, nn.Linear))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not torch.is_autocast_enabled("cpu"):
+            return super().forward(x)
+        for i, layer in enumerate(self):
+            if i == self._last_linear:
+                with torch.autocast("cpu", enabled=False):
+                    x = layer(x.float())
+            else:
+                x = layer(x)
+        return x
+
+
+def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None) -> MLP:
     """Linear layers with ReLU between them; ``out_activation`` after the last one if given."""
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
@@ -26,7 +47,7 @@ def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None) -> nn.Seq
             layers.append(nn.ReLU())
     if out_activation is not None:
         layers.append(out_activation)
-    return nn.Sequential(*layers)
+    return MLP(*layers)
 
 
 class RunningNorm(nn.Module):
