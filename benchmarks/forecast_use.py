@@ -12,6 +12,9 @@ success is what the forecast's content is worth to that actor:
 - ``oracle``: the movers' true future, simulated ahead (the best forecast there can be);
 - ``mpc``: the MPC predictor the shipped MDDPG actors learn from.
 
+``deck-sim run --policy <actor> --predictor <name>`` plays one actor with one swapped forecast; this script plays
+every pair on the same episodes and pairs the differences.
+
 Prints, per actor and predictor, the success rate with its Wilson 95 % interval and the collision rate, and the
 difference in success to the actor's own predictor, paired by episode, with a 95 % interval over the episodes
 (normal approximation of the per-episode differences), with the machine and the load average.
