@@ -228,8 +228,11 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
     mean success over seeds with its 95 % interval over seeds, each seed's, collisions, path ratio and turning."""
     from training.heldout import HeldOutError, held_out
 
-    print(f"\nheld-out evaluation: {episodes} episodes of docs/results.md (seeds {DEFAULT_SEED}-"
-          f"{DEFAULT_SEED + episodes - 1}), the actor each run ships (its best seed-500 evaluation, or its final fit)")
+    whose = "the episodes of docs/results.md" if episodes == 100 else "docs/results.md's 100 and their continuation"
+    if episodes < 100:
+        whose = f"the first {episodes} of docs/results.md's episodes"
+    print(f"\nheld-out evaluation: {episodes} episodes, seeds {DEFAULT_SEED}-{DEFAULT_SEED + episodes - 1} ({whose}), "
+          "the actor each run ships (its best seed-500 evaluation, or its final fit)")
     print("| arm | seeds | actor at step | success | success, 95 % over seeds | each seed | collision | "
           "path / shortest | turning deg |")
     print("|---|---|---|---|---|---|---|---|---|")
