@@ -34,6 +34,7 @@ TEACHER_VIEWS = ("full", "observation")
 """What a teaching planner may read (``TrainConfig.teacher_view``)."""
 ACTOR_ARCHS = ("mlp", "sets")
 LEARNER_PRECISIONS = ("float32", "bfloat16")
+"""The arithmetics of the updates (``TrainConfig.learner_precision``)."""
 
 
 class ConfigError(ValueError):
