@@ -7,7 +7,7 @@ held-out success, collision and timeout rates, mean reward, environment steps an
 arm, with the machine; plots success and mean episode reward against environment steps and wall-clock time.
 
     python benchmarks/learning.py [--scene deck1] [--steps 40000] [--arms paper-ddpg,tuned-ddpg,tuned-mddpg]
-                                  [--seeds 0] [--out runs/learning] [--plot docs/learning_deck1.png]
+                                  [--seeds 0] [--out runs/learning] [--jobs 1] [--plot docs/learning_deck1.png]
 
 Arms: ``<preset>-<algo>`` (``paper-ddpg``, ``tuned-ddpg``, ``tuned-mddpg``, ``paper-mddpg``) or an ablation of the
 tuned MDDPG recipe, ``tuned-mddpg-no-<switch>`` with switch one of ``training.config.ABLATIONS``. With ``--recipe
@@ -16,7 +16,8 @@ NAME`` the arms are training algorithms (default all the recipe trains: ``mddpg,
 ``--out/<recipe>-<algo>-seed<s>``: the folders of ``scripts/train_shipped.py``, so one set of runs serves both. An
 arm whose run folder already holds a finished run is read back, not retrained (delete the folder to rerun it); one
 with a checkpoint is resumed. ``--no-train`` reports the runs as they stand (an unfinished run by its latest
-evaluation) and trains nothing.
+evaluation) and trains nothing. ``--jobs N`` trains up to N runs at once, each in its own process with its progress
+in ``<run folder>.log``; a run's numbers do not depend on it.
 
 The seed-500 stream also picks each run's best actor, which flatters it; so with ``--recipe`` (or ``--held-out N``)
 a second table measures the actor each run ships on the held-out episodes of ``docs/results.md`` (seeds 100000
@@ -39,6 +40,10 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 import argparse  # noqa: E402
 import csv  # noqa: E402
 import json  # noqa: E402
+import multiprocessing  # noqa: E402
+import multiprocessing.connection  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -74,8 +79,13 @@ def main() -> None:
     parser.add_argument("--held-out", type=int, default=None,
                         help="also measure each run's shipped actor on this many held-out episodes of "
                              "docs/results.md, cached in the run folder (default 100 with --recipe, else 0)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="train up to this many runs at once, each in its own process with its progress in "
+                             "<run folder>.log (default 1: one after another, progress here)")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
     args = parser.parse_args()
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
     try:
         recipe = load_recipe(args.recipe) if args.recipe else None
     except ConfigError as err:
@@ -94,35 +104,36 @@ def main() -> None:
     seeds_of: dict[str, list[int]] = {}
     runs_of: dict[str, list[tuple[int, Path]]] = {}
     unfinished = []
-    for arm in arms:
-        for seed in seeds_given or (list(recipe.seeds(arm)) if recipe else [0]):
-            run = Path(args.out) / (f"{recipe.name}-{arm}-seed{seed}" if recipe else f"{scene}-{arm}-seed{seed}")
-            if not (run / "actor.npz").exists() and not args.no_train:
-                try:
-                    cfg = run_config(recipe, arm, scene, seed, args)
-                except ValueError as err:
-                    raise SystemExit(str(err)) from err
-                resume = (run / ("model.zip" if isinstance(cfg, dict) else "checkpoint.pt")).exists()
-                print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
-                from training.checkpoints import CheckpointError
-
-                try:
-                    if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
-                        from training.baselines import train_baseline
-
-                        train_baseline(**cfg, out=run, resume=resume)
-                    else:
-                        Trainer(cfg, run, resume=resume).train()
-                except (ConfigError, CheckpointError) as err:
-                    raise SystemExit(f"{run}: {err}") from err
-            if not (run / "eval.csv").exists() or not read_eval(run):
-                print(f"{run}: no evaluation yet, left out", flush=True)
-                continue
-            if not (run / "actor.npz").exists():
-                unfinished.append(f"{run.name} (at step {read_eval(run)[-1]['step']:.0f})")
-            curves.setdefault(arm, []).append(read_eval(run))
-            seeds_of.setdefault(arm, []).append(seed)
-            runs_of.setdefault(arm, []).append((seed, run))
+    prefix = recipe.name if recipe else scene
+    planned = [(arm, seed, Path(args.out) / f"{prefix}-{arm}-seed{seed}")
+               for arm in arms for seed in (seeds_given or (list(recipe.seeds(arm)) if recipe else [0]))]
+    to_train = []
+    for arm, seed, run in planned:
+        if not (run / "actor.npz").exists() and not args.no_train:
+            try:
+                cfg = run_config(recipe, arm, scene, seed, args)
+            except ValueError as err:
+                raise SystemExit(str(err)) from err
+            resume = (run / ("model.zip" if isinstance(cfg, dict) else "checkpoint.pt")).exists()
+            to_train.append((arm, seed, run, cfg, resume))
+    if args.jobs > 1 and len(to_train) > 1:
+        train_in_parallel(to_train, args.jobs)
+    else:
+        for arm, seed, run, cfg, resume in to_train:
+            print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
+            try:
+                train_one(cfg, run, resume)
+            except TrainingError as err:
+                raise SystemExit(str(err)) from err
+    for arm, seed, run in planned:
+        if not (run / "eval.csv").exists() or not read_eval(run):
+            print(f"{run}: no evaluation yet, left out", flush=True)
+            continue
+        if not (run / "actor.npz").exists():
+            unfinished.append(f"{run.name} (at step {read_eval(run)[-1]['step']:.0f})")
+        curves.setdefault(arm, []).append(read_eval(run))
+        seeds_of.setdefault(arm, []).append(seed)
+        runs_of.setdefault(arm, []).append((seed, run))
 
     name = f"recipe {recipe.name}" if recipe else f"scene {scene}"
     print(f"\n{name}; periodic evaluation: episodes of the seed-500 stream (which also picks each run's best actor); "
@@ -190,6 +201,98 @@ def main() -> None:
     plot.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(plot, dpi=110)
     print(f"wrote {plot}")
+
+
+class TrainingError(RuntimeError):
+    """A run could not be trained (a bad config or checkpoint); the message names the run folder."""
+
+
+def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> None:
+    """Train (or resume from its checkpoint) one run in ``run``: a ``TrainConfig`` with ``training.loop.Trainer``,
+    a dict with ``training.baselines.train_baseline`` (DQN, A2C). With ``log``, this process's standard output and
+    error (the progress report) are appended to that file, as in each process of ``--jobs``."""
+    if log is not None:
+        stream = open(log, "a", buffering=1)  # noqa: SIM115 (held for the process's life)
+        os.dup2(stream.fileno(), 1)
+        os.dup2(stream.fileno(), 2)
+        sys.stdout = sys.stderr = stream
+        print(f"training -> {run}" + (" (resuming)" if resume else ""), flush=True)
+    from training.checkpoints import CheckpointError
+
+    try:
+        if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
+            from training.baselines import train_baseline
+
+            train_baseline(**cfg, out=run, resume=resume)
+        else:
+            Trainer(cfg, run, resume=resume).train()
+    except (ConfigError, CheckpointError) as err:
+        raise TrainingError(f"{run}: {err}") from err
+
+
+def _train_job(cfg: object, run: Path, resume: bool, log: Path) -> None:
+    """One ``--jobs`` process: ``train_one`` with its output in ``log``, exit code 1 on a ``TrainingError``."""
+    try:
+        train_one(cfg, run, resume, log)
+    except TrainingError as err:
+        print(err, file=sys.stderr, flush=True)
+        raise SystemExit(1) from err
+
+
+def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs: int, report_every: float = 300.0
+                      ) -> None:
+    """Train the runs of ``to_train`` (arm, seed, run folder, config, resume) in up to ``jobs`` processes at once,
+    in order, each run's progress appended to ``<run folder>.log`` beside it. Prints each start and end, and every
+    ``report_every`` seconds each running run's latest progress line. Ctrl-C reaches every run, which stops at its
+    next checkpoint (``--resume`` continues it); this waits for them, then exits. Exits naming each run that
+    failed, and its log, once the others have finished."""
+    ctx = multiprocessing.get_context("spawn")  # (fresh interpreters: no torch state forked into the runs)
+    pending = list(to_train)
+    running: list[tuple[multiprocessing.process.BaseProcess, Path, Path, float]] = []
+    failed: list[str] = []
+    print(f"training {len(pending)} runs, {jobs} at a time; each run's progress in <run folder>.log", flush=True)
+    try:
+        while pending or running:
+            while pending and len(running) < jobs:
+                arm, seed, run, cfg, resume = pending.pop(0)
+                run.parent.mkdir(parents=True, exist_ok=True)
+                log = run.parent / f"{run.name}.log"
+                proc = ctx.Process(target=_train_job, args=(cfg, run, resume, log), name=run.name)
+                proc.start()
+                running.append((proc, run, log, time.monotonic()))
+                print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else "") + f", log {log}",
+                      flush=True)
+            ready = multiprocessing.connection.wait([p.sentinel for p, *_ in running], timeout=report_every)
+            if not ready:
+                for _, run, log, _ in running:
+                    print(f"  {run.name}: {last_line(log)}", flush=True)
+            for item in [r for r in running if r[0].sentinel in ready]:
+                proc, run, log, start = item
+                proc.join()
+                running.remove(item)
+                minutes = (time.monotonic() - start) / 60
+                if proc.exitcode == 0:
+                    print(f"finished {run.name} in {minutes:.1f} min", flush=True)
+                else:
+                    failed.append(f"{run} (exit code {proc.exitcode}; see {log})")
+                    print(f"FAILED {run.name} after {minutes:.1f} min: {last_line(log)}", flush=True)
+    except KeyboardInterrupt:
+        print("interrupted: waiting for the running runs to stop at their checkpoints (--resume continues them)",
+              flush=True)
+        for proc, *_ in running:
+            proc.join()
+        raise SystemExit(130) from None
+    if failed:
+        raise SystemExit("runs that failed: " + "; ".join(failed))
+
+
+def last_line(log: Path) -> str:
+    """The last non-empty line of a run's log (its latest progress report), or a note that it has none yet."""
+    try:
+        lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
+    except OSError:
+        lines = []
+    return lines[-1].strip() if lines else "(no output yet)"
 
 
 def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.Namespace) -> object:

@@ -48,3 +48,32 @@ def test_unknown_recipe_is_refused_by_name(tmp_path):
         cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=300,
     )
     assert done.returncode != 0 and "unknown recipe 'harbour'" in done.stderr
+
+
+def _learning(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "benchmarks/learning.py", *args], cwd=ROOT,
+                          env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"},
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_failed_run(tmp_path):
+    tiny = ["--arms", "paper-ddpg,paper-mddpg", "--steps", "300", "--eval-every", "150", "--eval-episodes", "1"]
+    one = _learning(*tiny, "--out", str(tmp_path / "one"))
+    two = _learning(*tiny, "--out", str(tmp_path / "two"), "--jobs", "2")
+    assert one.returncode == 0 and two.returncode == 0, one.stderr + two.stderr
+    assert "training 2 runs, 2 at a time" in two.stdout and "finished deck1-paper-mddpg-seed0 in" in two.stdout
+    for run in ("deck1-paper-ddpg-seed0", "deck1-paper-mddpg-seed0"):
+        assert "step 300: held-out success" in (tmp_path / "two" / f"{run}.log").read_text()
+        rows = [(tmp_path / out / run / "eval.csv").read_text().splitlines() for out in ("one", "two")]
+        # every column but the wall-clock time is the same whichever process trained the run
+        assert [r.split(",")[:1] + r.split(",")[2:] for r in rows[0]] == \
+               [r.split(",")[:1] + r.split(",")[2:] for r in rows[1]]
+    # a run that cannot resume (a corrupt checkpoint) fails alone, named with its log; the other run finishes
+    bad = tmp_path / "bad" / "deck1-paper-ddpg-seed0"
+    bad.mkdir(parents=True)
+    (bad / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    failed = _learning(*tiny, "--out", str(tmp_path / "bad"), "--jobs", "2")
+    assert failed.returncode == 1
+    assert f"runs that failed: {bad} (exit code 1; see {bad}.log)" in failed.stderr
+    assert (tmp_path / "bad" / "deck1-paper-mddpg-seed0" / "actor.npz").exists()
+    assert "checkpoint" in (tmp_path / "bad" / "deck1-paper-ddpg-seed0.log").read_text()
