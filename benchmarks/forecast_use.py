@@ -17,7 +17,8 @@ every pair on the same episodes and pairs the differences.
 
 Prints, per actor and predictor, the success rate with its Wilson 95 % interval and the collision rate, and the
 difference in success to the actor's own predictor, paired by episode, with a 95 % interval over the episodes
-(normal approximation of the per-episode differences), with the machine and the load average.
+(Student's t over the per-episode differences, `deck_sim.metrics.mean_interval`), with the machine and the load
+average.
 
     python benchmarks/forecast_use.py --actors runs/learning/deck1-reward-mddpg-seed0/actor_best.npz[,...]
         [--scene deck1] [--episodes 400] [--predictors mpc,constant_velocity,oracle] [--workers N]
@@ -32,7 +33,6 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -42,7 +42,7 @@ from common import machine  # noqa: E402
 
 from deck_sim.control.prediction import PREDICTOR_NAMES  # noqa: E402
 from deck_sim.evaluation import EvalConfig, evaluate  # noqa: E402
-from deck_sim.metrics import rate_interval  # noqa: E402
+from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
 from deck_sim.policies import PolicyFileError, load_actor  # noqa: E402
 
 
@@ -58,14 +58,6 @@ def with_predictor(src: Path, predictor: str, out: Path) -> Path:
     arrays["meta"] = np.array(json.dumps(meta))
     np.savez(out, **arrays)
     return out
-
-
-def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
-    """Mean of ``a - b`` over paired episodes (0/1 successes) and its normal-approximation 95 % interval."""
-    d = a.astype(float) - b.astype(float)
-    mean = float(d.mean())
-    half = 1.96 * float(d.std(ddof=1)) / math.sqrt(len(d)) if len(d) > 1 else float("nan")
-    return mean, mean - half, mean + half
 
 
 def main() -> None:
@@ -115,7 +107,7 @@ def main() -> None:
                 lo, hi = rate_interval(k, n)
                 line = (f"  {predictor:<18} success {k / n:6.1%} ({lo:.1%}-{hi:.1%}), collision {collided / n:6.1%}")
                 if predictor != own:
-                    d, dlo, dhi = paired_difference(success[predictor], success[own])
+                    d, dlo, dhi = mean_interval(success[predictor].astype(float) - success[own].astype(float))
                     line += f"; minus {own}: {100 * d:+.1f} points ({100 * dlo:+.1f} to {100 * dhi:+.1f})"
                 print(line, flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.1f} (1 min)")
