@@ -244,8 +244,9 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
     """Train the runs of ``to_train`` (arm, seed, run folder, config, resume) in up to ``jobs`` processes at once,
     in order, each run's progress appended to ``<run folder>.log`` beside it. Prints each start and end, and every
     ``report_every`` seconds each running run's latest progress line. Ctrl-C reaches every run, which stops at its
-    next checkpoint (``--resume`` continues it); this waits for them, then exits. Exits naming each run that
-    failed, and its log, once the others have finished."""
+    next checkpoint (running the command again resumes it); this waits for them, then exits with code 130. A run
+    whose process ends without its final actor (it was interrupted) is reported as stopped, not finished. Exits
+    naming each run that failed, and its log, once the others have finished."""
     ctx = multiprocessing.get_context("spawn")  # (fresh interpreters: no torch state forked into the runs)
     pending = list(to_train)
     running: list[tuple[multiprocessing.process.BaseProcess, Path, Path, float]] = []
@@ -271,14 +272,17 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
                 proc.join()
                 running.remove(item)
                 minutes = (time.monotonic() - start) / 60
-                if proc.exitcode == 0:
+                if proc.exitcode == 0 and (run / "actor.npz").exists():
                     print(f"finished {run.name} in {minutes:.1f} min", flush=True)
+                elif proc.exitcode == 0:  # (interrupted: it stopped at a checkpoint)
+                    print(f"stopped {run.name} after {minutes:.1f} min, unfinished (run again to resume): "
+                          f"{last_line(log)}", flush=True)
                 else:
                     failed.append(f"{run} (exit code {proc.exitcode}; see {log})")
                     print(f"FAILED {run.name} after {minutes:.1f} min: {last_line(log)}", flush=True)
     except KeyboardInterrupt:
-        print("interrupted: waiting for the running runs to stop at their checkpoints (--resume continues them)",
-              flush=True)
+        print("interrupted: waiting for the running runs to stop at their checkpoints (run the command again to "
+              "resume them)", flush=True)
         for proc, *_ in running:
             proc.join()
         raise SystemExit(130) from None
