@@ -120,7 +120,7 @@ def main() -> None:
         train_in_parallel(to_train, args.jobs)
     else:
         for arm, seed, run, cfg, resume in to_train:
-            print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else ""), flush=True)
+            print(starting(arm, seed, run, resume), flush=True)
             try:
                 train_one(cfg, run, resume)
             except TrainingError as err:
@@ -207,6 +207,11 @@ class TrainingError(RuntimeError):
     """A run could not be trained (a bad config or checkpoint); the message names the run folder."""
 
 
+def starting(arm: str, seed: int, run: Path, resume: bool) -> str:
+    """The line that announces a run's training: its arm, seed and folder, and whether it resumes."""
+    return f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else "")
+
+
 def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> None:
     """Train (or resume from its checkpoint) one run in ``run``: a ``TrainConfig`` with ``training.loop.Trainer``,
     a dict with ``training.baselines.train_baseline`` (DQN, A2C). With ``log``, this process's standard output and
@@ -216,7 +221,7 @@ def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> 
         os.dup2(stream.fileno(), 1)
         os.dup2(stream.fileno(), 2)
         sys.stdout = sys.stderr = stream
-        print(f"training -> {run}" + (" (resuming)" if resume else ""), flush=True)
+        print(f"{run.name}: " + ("resuming" if resume else "starting"), flush=True)
     from training.checkpoints import CheckpointError
 
     try:
@@ -261,8 +266,7 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
                 proc = ctx.Process(target=_train_job, args=(cfg, run, resume, log), name=run.name)
                 proc.start()
                 running.append((proc, run, log, time.monotonic()))
-                print(f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else "") + f", log {log}",
-                      flush=True)
+                print(f"{starting(arm, seed, run, resume)}, log {log}", flush=True)
             ready = multiprocessing.connection.wait([p.sentinel for p, *_ in running], timeout=report_every)
             if not ready:
                 for _, run, log, _ in running:
