@@ -272,26 +272,32 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
                 for _, run, log, _ in running:
                     print(f"  {run.name}: {last_line(log)}", flush=True)
             for item in [r for r in running if r[0].sentinel in ready]:
-                proc, run, log, start = item
-                proc.join()
                 running.remove(item)
-                minutes = (time.monotonic() - start) / 60
-                if proc.exitcode == 0 and (run / "actor.npz").exists():
-                    print(f"finished {run.name} in {minutes:.1f} min", flush=True)
-                elif proc.exitcode == 0:  # (interrupted: it stopped at a checkpoint)
-                    print(f"stopped {run.name} after {minutes:.1f} min, unfinished (run again to resume): "
-                          f"{last_line(log)}", flush=True)
-                else:
-                    failed.append(f"{run} (exit code {proc.exitcode}; see {log})")
-                    print(f"FAILED {run.name} after {minutes:.1f} min: {last_line(log)}", flush=True)
+                _report_end(*item, failed)
     except KeyboardInterrupt:
         print("interrupted: waiting for the running runs to stop at their checkpoints (run the command again to "
               "resume them)", flush=True)
-        for proc, *_ in running:
-            proc.join()
+        for item in running:
+            _report_end(*item, failed)
         raise SystemExit(130) from None
     if failed:
         raise SystemExit("runs that failed: " + "; ".join(failed))
+
+
+def _report_end(proc: multiprocessing.process.BaseProcess, run: Path, log: Path, start: float, failed: list[str]
+                ) -> None:
+    """Wait for one ``--jobs`` process and print how its run ended: finished (its final actor is there), stopped
+    (it ended cleanly without one: interrupted at a checkpoint) or failed (added to ``failed``)."""
+    proc.join()
+    minutes = (time.monotonic() - start) / 60
+    if proc.exitcode == 0 and (run / "actor.npz").exists():
+        print(f"finished {run.name} in {minutes:.1f} min", flush=True)
+    elif proc.exitcode == 0:
+        print(f"stopped {run.name} after {minutes:.1f} min, unfinished (run again to resume): {last_line(log)}",
+              flush=True)
+    else:
+        failed.append(f"{run} (exit code {proc.exitcode}; see {log})")
+        print(f"FAILED {run.name} after {minutes:.1f} min: {last_line(log)}", flush=True)
 
 
 def last_line(log: Path) -> str:

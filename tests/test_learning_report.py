@@ -4,8 +4,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,3 +79,35 @@ def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_
     assert f"runs that failed: {bad} (exit code 1; see {bad}.log)" in failed.stderr
     assert (tmp_path / "bad" / "deck1-paper-mddpg-seed0" / "actor.npz").exists()
     assert "checkpoint" in (tmp_path / "bad" / "deck1-paper-ddpg-seed0.log").read_text()
+
+
+def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(tmp_path):
+    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg,paper-mddpg", "--steps", "4000",
+            "--eval-every", "2000", "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
+    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+    runs = [tmp_path / f"deck1-paper-{algo}-seed0" for algo in ("ddpg", "mddpg")]
+    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        # both runs are training (their logs report steps) before Ctrl-C reaches the process group
+        while not all(r.with_suffix(".log").exists() and "step (" in r.with_suffix(".log").read_text()
+                      for r in runs):
+            assert proc.poll() is None and time.monotonic() < deadline, "the runs never started training"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "interrupted: waiting for the running runs to stop at their checkpoints" in out
+    for run in runs:
+        assert f"stopped {run.name} after" in out and "unfinished (run again to resume)" in out
+        assert (run / "checkpoint.pt").exists() and not (run / "actor.npz").exists()
+    again = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    for run in runs:
+        assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
+        assert (run / "actor.npz").exists()
+        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("4000,")
