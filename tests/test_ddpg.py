@@ -87,6 +87,24 @@ def test_actor_loss_and_the_twin_critics_minimum_by_hand():
     assert not torch.equal(before.heads[0][0].weight, agent.critic.heads[0][0].weight)
 
 
+@pytest.mark.parametrize("weight", [1.0, 0.75, 0.5])
+def test_the_twin_target_weighs_the_smaller_and_the_larger_critic(weight):
+    agent = _tiny_agent(twin_critics=True, twin_min_weight=weight)
+    with torch.no_grad():  # second target head 5 below the first whatever the input
+        agent.critic_target.heads[1][2].bias.fill_(-4.0)
+    batch = _batch([[1.0, 0.0]], [[0.5]], [0.0], [[2.0, 1.0]], [0.0])
+    larger = 3.0 * (3.0 + 2.0 * np.tanh(0.5)) + 1.0
+    y = 0.9 * (weight * (larger - 5.0) + (1.0 - weight) * larger)
+    np.testing.assert_allclose(agent.td_target(batch).numpy(), [y], rtol=1e-6)
+
+
+def test_twin_min_weight_outside_zero_to_one_is_refused_by_name():
+    from training.config import ConfigError
+
+    with pytest.raises(ConfigError, match="twin_min_weight"):
+        make_config("reward", twin_min_weight=1.5)
+
+
 def _q1_by_hand(agent: DDPGAgent, obs: np.ndarray, action: float) -> float:
     """Q1 of the agent's (already updated) critic at one state and action, evaluated by hand from its weights."""
     head = agent.critic.heads[0]

@@ -199,7 +199,12 @@ class TrainConfig:
     obs_norm: bool = False
     """Running mean/variance normalisation of observations (statistics from collected data, clipped to +-10)."""
     twin_critics: bool = False
-    """TD3: two critics, the TD target takes their minimum."""
+    """TD3: two critics, the TD target takes their minimum (``twin_min_weight``)."""
+    twin_min_weight: float = 1.0
+    """With ``twin_critics``, the TD target's weight on the smaller of the two target critics, the larger taking
+    the rest (Weighted Delayed DDPG, He and Hou 2020): 1 is TD3's minimum, 0.5 their mean. The minimum is
+    pessimistic by about half the critics' disagreement on every bootstrapped step, and that bias compounds over
+    the discounted horizon."""
     target_noise: float = 0.0
     """TD3 target policy smoothing: std of the clipped Gaussian noise added to mu'(s') (0: off)."""
     target_noise_clip: float = 0.5
@@ -376,7 +381,7 @@ class TrainConfig:
             raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
         if self.bc_weight_final is not None and self.bc_weight <= 0.0:
             raise ConfigError("bc_weight_final: the cloning term is off (bc_weight 0); a schedule needs bc_weight > 0")
-        for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay"):
+        for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay", "twin_min_weight"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
@@ -535,6 +540,8 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "her": {"her_ratio": 0.8},
     "nstep": {"n_step": 3},
     "per": {"per_alpha": 0.6, "per_beta": 0.4},
+    "meanq": {"twin_min_weight": 0.5},
+    "onecritic": {"twin_critics": False},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -554,7 +561,9 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 ``teacher_body``; ``dagger``: after the final fit, the fitted actor drives 40,000 more steps, greedy and without
 updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
 the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
-alpha 0.6 and beta from 0.4, ``per_alpha``). Several switches join with ``+``:
+alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
+than their minimum, ``twin_min_weight = 0.5``; ``onecritic``: one critic, TD3's target smoothing and delayed actor
+kept, ``twin_critics = False``). Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 

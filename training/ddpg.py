@@ -1,7 +1,8 @@
 """DDPG (paper eq. 3-6) with TD3's fixes and DDPGfD's demonstration loss as switches of one agent.
 
-- eq. 3: y = r if terminated else r + gamma * Q'(s', mu'(s'))  (TD3: the minimum of two target critics, and
-  clipped noise on mu'(s'); an n-step batch brings its summed r and its own gamma^m);
+- eq. 3: y = r if terminated else r + gamma * Q'(s', mu'(s'))  (TD3: the minimum of two target critics, or a
+  weighted mean of the smaller and the larger, and clipped noise on mu'(s'); an n-step batch brings its summed r
+  and its own gamma^m);
 - eq. 4: critic loss, mean squared error to y (summed over the twin critics);
 - eq. 5: actor loss -mean Q(s, mu(s)), plus ``bc_weight`` times the squared error to the demonstrator's action on
   the samples that have one (demonstrations, and the agent's own states relabelled by the planner online), where
@@ -120,7 +121,10 @@ class DDPGAgent:
         if cfg.target_noise > 0.0:
             eps = torch.randn(next_action.shape, generator=self.generator) * cfg.target_noise
             next_action = (next_action + eps.clamp(-cfg.target_noise_clip, cfg.target_noise_clip)).clamp(-1.0, 1.0)
-        q_next = torch.stack(self.critic_target(next_obs, next_action)).min(dim=0).values
+        heads = torch.stack(self.critic_target(next_obs, next_action))
+        q_next = heads.min(dim=0).values
+        if len(heads) > 1 and cfg.twin_min_weight < 1.0:  # (weighted toward the larger twin)
+            q_next = cfg.twin_min_weight * q_next + (1.0 - cfg.twin_min_weight) * heads.max(dim=0).values
         discount = cfg.gamma if batch.discount is None else batch.discount  # (an n-step batch's own gamma^m)
         return cfg.reward_scale * batch.reward + discount * (1.0 - batch.terminated) * q_next
 
