@@ -82,16 +82,17 @@ def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_
 
 
 def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(tmp_path):
-    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg,paper-mddpg", "--steps", "4000",
+    # (reward-ddpg steps its 8 environments in a worker process, which the terminal's Ctrl-C reaches too)
+    args = [sys.executable, "benchmarks/learning.py", "--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "6000",
             "--eval-every", "2000", "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
     env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
-    runs = [tmp_path / f"deck1-paper-{algo}-seed0" for algo in ("ddpg", "mddpg")]
+    runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
     proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     try:
         deadline = time.monotonic() + 300
-        # both runs are training (their logs report steps) before Ctrl-C reaches the process group
-        while not all(r.with_suffix(".log").exists() and "step (" in r.with_suffix(".log").read_text()
+        # both runs are training (each has logged its first 1,000 steps) before Ctrl-C reaches the process group
+        while not all((r / "progress.csv").exists() and len((r / "progress.csv").read_text().splitlines()) > 1
                       for r in runs):
             assert proc.poll() is None and time.monotonic() < deadline, "the runs never started training"
             time.sleep(0.2)
@@ -110,4 +111,4 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
     for run in runs:
         assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
         assert (run / "actor.npz").exists()
-        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("4000,")
+        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("6000,")

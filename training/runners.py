@@ -295,7 +295,11 @@ class InlineEnvs(Runner):
 
 def _worker(conn: Any, n: int, view: AgentView | None) -> None:
     import os
+    import signal
 
+    # Ctrl-C in a terminal reaches the whole process group: the learner stops the run at a checkpoint and then
+    # closes this worker, which must live until then
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("MUJOCO_GL", "disable")
     import torch
 
