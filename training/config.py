@@ -541,7 +541,6 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "nstep": {"n_step": 3},
     "per": {"per_alpha": 0.6, "per_beta": 0.4},
     "meanq": {"twin_min_weight": 0.5},
-    "onecritic": {"twin_critics": False},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -562,8 +561,7 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
 the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
 alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
-than their minimum, ``twin_min_weight = 0.5``; ``onecritic``: one critic, TD3's target smoothing and delayed actor
-kept, ``twin_critics = False``). Several switches join with ``+``:
+than their minimum, ``twin_min_weight = 0.5``). Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 
