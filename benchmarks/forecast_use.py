@@ -9,6 +9,7 @@ the actor reads it as it read its own. Everything else (weights, observation, sc
 success is what the forecast's content is worth to that actor:
 
 - ``constant_velocity``: each mover's last velocity held over the horizon (no intent);
+- ``stationary``: each mover held where it is now (no motion at all: what the actor does with positions alone);
 - ``oracle``: the movers' true future, simulated ahead (the best forecast there can be);
 - ``mpc``: the MPC predictor the shipped MDDPG actors learn from.
 
@@ -21,7 +22,7 @@ difference in success to the actor's own predictor, paired by episode, with a 95
 average.
 
     python benchmarks/forecast_use.py --actors runs/learning/deck1-reward-mddpg-seed0/actor_best.npz[,...]
-        [--scene deck1] [--episodes 400] [--predictors mpc,constant_velocity,oracle] [--workers N]
+        [--scene deck1] [--episodes 400] [--predictors mpc,constant_velocity,stationary,oracle] [--workers N]
 """
 
 from __future__ import annotations
@@ -66,8 +67,8 @@ def main() -> None:
                                                         "comma-separated")
     parser.add_argument("--scene", default=None, help="scene (default: each actor's own)")
     parser.add_argument("--episodes", type=int, default=400)
-    parser.add_argument("--predictors", default="mpc,constant_velocity,oracle",
-                        help="forecasts to feed, comma-separated: constant_velocity, oracle, mpc")
+    parser.add_argument("--predictors", default="mpc,constant_velocity,stationary,oracle",
+                        help="forecasts to feed, comma-separated: constant_velocity, stationary, oracle, mpc")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args()
     predictors = [p for p in args.predictors.split(",") if p]

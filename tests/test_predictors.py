@@ -1,4 +1,4 @@
-"""The simple predictors (none, constant velocity, oracle) and the task's prediction plumbing."""
+"""The simple predictors (none, constant velocity, stationary, oracle) and the task's prediction plumbing."""
 
 import numpy as np
 import pytest
@@ -9,6 +9,7 @@ from deck_sim.control.prediction import (
     NoPrediction,
     Oracle,
     PredictionInputError,
+    Stationary,
     make_predictor,
 )
 from deck_sim.types import ObstacleTracks
@@ -37,6 +38,18 @@ def test_none_predicts_nothing_and_oracle_returns_the_future():
     np.testing.assert_array_equal(out.positions, future)
     with pytest.raises(PredictionInputError, match="needs tracks.future"):
         Oracle(horizon=4).predict(tracks)
+
+
+def test_stationary_holds_every_obstacle_where_it_is_and_the_task_observes_that():
+    tracks = _straight()
+    pred = Stationary(horizon=5).predict(tracks)
+    np.testing.assert_array_equal(pred.positions, np.repeat(tracks.current[:, None, :], 5, axis=1))
+    assert make_predictor("stationary", 5, 0.5).name == "stationary"
+    env = deck_sim.load("deck1", seed=3, episode__predictor="stationary")
+    obs = env.reset().observation
+    rel = obs["dynamic_obstacles"]  # (movers' positions now, relative to the agent, as every predicted row)
+    np.testing.assert_allclose(obs["predicted"], np.repeat(rel[:, None, :], obs["predicted"].shape[1], axis=1),
+                               atol=1e-5)
 
 
 @pytest.mark.parametrize(

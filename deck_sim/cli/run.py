@@ -343,7 +343,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--predictor",
         default=None,
-        help="none, constant_velocity, oracle or mpc (default: oracle for scripted, else the scene's)",
+        help="none, constant_velocity, stationary, oracle or mpc (default: oracle for scripted, else the scene's)",
     )
     p.add_argument("--scene-set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                    help="override a field of the scene file, e.g. --scene-set movers.agent_yield_braking=2.0 "

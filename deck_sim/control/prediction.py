@@ -7,6 +7,7 @@ control step. This module imports only numpy, CasADi and ``deck_sim.types``, so 
 Implementations:
     ``none``               no prediction (N = 0): the agent sees only the obstacles' current positions.
     ``constant_velocity``  velocity from a least-squares line over the last few samples, extrapolated.
+    ``stationary``         every obstacle held at its current position (a forecast without motion, for ablations).
     ``oracle``             the obstacles' true future, computed by the task by simulating ahead.
     ``mpc``                the CasADi MPC predictor (``MPCPredictor``).
 """
@@ -137,6 +138,25 @@ class ConstantVelocity:
 
 
 @dataclass
+class Stationary:
+    """Every obstacle held where it is now over the whole horizon: a forecast with the motion taken out. A reference
+    for how much of a forecast's motion an actor reads (``benchmarks/forecast_use.py``), not a method."""
+
+    horizon: int = 10
+    name: str = "stationary"
+    needs_future: bool = False
+
+    def reset(self, spots: np.ndarray, kinds: np.ndarray) -> None:
+        """Stateless: nothing to reset."""
+
+    def predict(self, tracks: ObstacleTracks) -> Prediction:
+        """The current positions repeated (n, horizon, 2)."""
+        validate_tracks(tracks, min_history=1)
+        pos = np.repeat(np.asarray(tracks.current, dtype=np.float64)[:, None, :], self.horizon, axis=1)
+        return Prediction(pos, np.zeros(tracks.n, dtype=bool))
+
+
+@dataclass
 class Oracle:
     """The obstacles' true future, simulated ahead by the task (``needs_future``); an upper bound, not a method."""
 
@@ -158,7 +178,7 @@ class Oracle:
         return Prediction(fut.copy(), np.zeros(tracks.n, dtype=bool))
 
 
-PREDICTOR_NAMES = ("none", "constant_velocity", "oracle", "mpc")
+PREDICTOR_NAMES = ("none", "constant_velocity", "stationary", "oracle", "mpc")
 
 
 def make_predictor(name: str, horizon: int, dt: float) -> Predictor:
@@ -171,6 +191,8 @@ def make_predictor(name: str, horizon: int, dt: float) -> Predictor:
         return NoPrediction()
     if name == "constant_velocity":
         return ConstantVelocity(horizon=horizon)
+    if name == "stationary":
+        return Stationary(horizon=horizon)
     if name == "oracle":
         return Oracle(horizon=horizon)
     if name == "mpc":

@@ -223,7 +223,7 @@ class EpisodeSpec:
     predictor's own ``history`` when ``predictor`` is ``mpc``."""
     horizon: int = 10
     """Predicted steps N of each mover (at the control period); 1 to ``MAX_HORIZON``."""
-    predictor: Literal["none", "constant_velocity", "oracle", "mpc"] = "constant_velocity"
+    predictor: Literal["none", "constant_velocity", "stationary", "oracle", "mpc"] = "constant_velocity"
     """Which predictor fills the observation's predicted part. ``mpc`` also bounds the scene by the MPC predictor's
     compiled capacity: at most its ``max_movers`` movers and ``max_spots`` spots
     (``control.mpc_settings.MPCPredictorSettings``)."""
