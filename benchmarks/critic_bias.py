@@ -85,9 +85,7 @@ def critic_bias(run: Path, samples: int, seed: int = 0) -> dict[str, float]:
     with torch.no_grad():
         obs, next_obs = agent.norm(t("obs")), agent.norm(t("next_obs"))
         heads = torch.stack(agent.critic(obs, t("action")))
-        q = heads.min(0).values
-        if len(heads) > 1 and cfg.twin_min_weight < 1.0:
-            q = cfg.twin_min_weight * q + (1.0 - cfg.twin_min_weight) * heads.max(0).values
+        q = agent.combine_heads(heads)
         boot = torch.stack(agent.critic_target(next_obs, agent.actor_target(next_obs)))
     q, gs = q.numpy().astype(np.float64), g[pick]
     out = {

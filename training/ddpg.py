@@ -121,12 +121,18 @@ class DDPGAgent:
         if cfg.target_noise > 0.0:
             eps = torch.randn(next_action.shape, generator=self.generator) * cfg.target_noise
             next_action = (next_action + eps.clamp(-cfg.target_noise_clip, cfg.target_noise_clip)).clamp(-1.0, 1.0)
-        heads = torch.stack(self.critic_target(next_obs, next_action))
-        q_next = heads.min(dim=0).values
-        if len(heads) > 1 and cfg.twin_min_weight < 1.0:  # (weighted toward the larger twin)
-            q_next = cfg.twin_min_weight * q_next + (1.0 - cfg.twin_min_weight) * heads.max(dim=0).values
+        q_next = self.combine_heads(torch.stack(self.critic_target(next_obs, next_action)))
         discount = cfg.gamma if batch.discount is None else batch.discount  # (an n-step batch's own gamma^m)
         return cfg.reward_scale * batch.reward + discount * (1.0 - batch.terminated) * q_next
+
+    def combine_heads(self, heads: torch.Tensor) -> torch.Tensor:
+        """The TD target's value estimate (B,) from the critic heads' Q values stacked (n_heads, B): one head's own,
+        TD3's minimum of two, or ``twin_min_weight`` times the smaller plus the rest times the larger."""
+        q = heads.min(dim=0).values
+        w = self.config.twin_min_weight
+        if len(heads) > 1 and w < 1.0:
+            q = w * q + (1.0 - w) * heads.max(dim=0).values
+        return q
 
     def precision(self) -> torch.autocast:
         """The context the updates run in: a bfloat16 CPU autocast under ``learner_precision = "bfloat16"``
