@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 HEADER = "step,wall_s,episodes,success,collision,timeout,off_surface,reward\n"
 
@@ -81,6 +83,7 @@ def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_
     assert "checkpoint" in (tmp_path / "bad" / "deck1-paper-ddpg-seed0.log").read_text()
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(tmp_path):
     # (reward-ddpg steps its 8 environments in a worker process, which the terminal's Ctrl-C reaches too)
     args = [sys.executable, "benchmarks/learning.py", "--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "6000",
@@ -88,13 +91,15 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
     env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
     runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
     proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True,  # (its own group, as a terminal's foreground job)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # (not a shell's ignore)
     try:
         deadline = time.monotonic() + 300
         # both runs are training (each has logged its first 1,000 steps) before Ctrl-C reaches the process group
         while not all((r / "progress.csv").exists() and len((r / "progress.csv").read_text().splitlines()) > 1
                       for r in runs):
-            assert proc.poll() is None and time.monotonic() < deadline, "the runs never started training"
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the runs logged no 1,000 steps within 300 s"
             time.sleep(0.2)
         os.killpg(proc.pid, signal.SIGINT)
         out, err = proc.communicate(timeout=300)

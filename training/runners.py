@@ -298,14 +298,20 @@ def _worker(conn: Any, n: int, view: AgentView | None) -> None:
     import signal
 
     # Ctrl-C in a terminal reaches the whole process group: the learner stops the run at a checkpoint and then
-    # closes this worker, which must live until then
+    # closes this worker, which must live until then (and ends on its own if the learner is gone)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    learner = os.getppid()
     os.environ.setdefault("MUJOCO_GL", "disable")
     import torch
 
     torch.set_num_threads(1)  # the learner's networks act here on one thread, as they do in every worker
     envs = EnvGroup(n, view)
     while True:
+        if not conn.poll(5.0):  # (a command arrives at once while the learner lives)
+            if os.getppid() != learner:
+                envs.close()
+                return
+            continue
         cmd, args = conn.recv()
         if cmd == "close":
             envs.close()
