@@ -98,11 +98,13 @@ def test_the_twin_target_weighs_the_smaller_and_the_larger_critic(weight):
     np.testing.assert_allclose(agent.td_target(batch).numpy(), [y], rtol=1e-6)
 
 
-def test_twin_min_weight_outside_zero_to_one_is_refused_by_name():
+def test_twin_min_weight_outside_zero_to_one_or_without_twins_is_refused_by_name():
     from training.config import ConfigError
 
     with pytest.raises(ConfigError, match="twin_min_weight"):
         make_config("reward", twin_min_weight=1.5)
+    with pytest.raises(ConfigError, match="twin_min_weight: weighs the twin critics, which are off"):
+        make_config("paper", twin_min_weight=0.5)
 
 
 def _q1_by_hand(agent: DDPGAgent, obs: np.ndarray, action: float) -> float:

@@ -202,9 +202,9 @@ class TrainConfig:
     """TD3: two critics, the TD target takes their minimum (``twin_min_weight``)."""
     twin_min_weight: float = 1.0
     """With ``twin_critics``, the TD target's weight on the smaller of the two target critics, the larger taking
-    the rest (Weighted Delayed DDPG, He and Hou 2020): 1 is TD3's minimum, 0.5 their mean. The minimum is
-    pessimistic by about half the critics' disagreement on every bootstrapped step, and that bias compounds over
-    the discounted horizon."""
+    the rest: 1 is TD3's minimum, 0.5 their mean (Weighted Delayed DDPG, He and Hou 2020, weighs the minimum
+    against the mean in the same spirit). The minimum lies half the critics' disagreement below their mean on every
+    bootstrapped step, and the discount compounds that over the horizon."""
     target_noise: float = 0.0
     """TD3 target policy smoothing: std of the clipped Gaussian noise added to mu'(s') (0: off)."""
     target_noise_clip: float = 0.5
@@ -381,6 +381,8 @@ class TrainConfig:
             raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
         if self.bc_weight_final is not None and self.bc_weight <= 0.0:
             raise ConfigError("bc_weight_final: the cloning term is off (bc_weight 0); a schedule needs bc_weight > 0")
+        if self.twin_min_weight != 1.0 and not self.twin_critics:
+            raise ConfigError("twin_min_weight: weighs the twin critics, which are off (twin_critics false)")
         for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay", "twin_min_weight"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
