@@ -12,9 +12,12 @@ On up to ``--samples`` of the others (seeded) it prints, per run:
 - the mean Monte Carlo return G and the mean Q of the online critic at the same state and stored action (the
   minimum of the twin heads, or the weighted mean that the run's TD target takes: ``twin_min_weight``), their
   difference (the critic's bias) and correlation;
-- at the next states and the target actor's action (the TD target's bootstrap): the heads' mean absolute
-  disagreement and how far their minimum lies below their mean. TD3's minimum removes that much from every
+- at the next states and the target actor's action (the TD target's bootstrap): the twin heads' mean absolute
+  disagreement. Their minimum lies half of it below their mean, TD3's minimum removes that much from every
   bootstrapped step, and the discount compounds it over the horizon.
+
+G is the return of the actions stored (exploration noise, and the policies of the past), Q the critic's value of
+the same action followed by its target policy: a difference of a unit or two can be either's doing, not one of many.
 
     python benchmarks/critic_bias.py runs/switches/deck1-reward-mddpg-seed0 [RUN ...] [--samples 20000]
 """
@@ -34,19 +37,35 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.checkpoints import CHECKPOINT, CheckpointError, checkpoint_config, load_checkpoint  # noqa: E402
+from training.checkpoints import (  # noqa: E402
+    CHECKPOINT,
+    PREVIOUS,
+    CheckpointError,
+    checkpoint_config,
+    load_run_checkpoint,
+)
 from training.ddpg import DDPGAgent  # noqa: E402
-from training.envs import env_layout, make_env  # noqa: E402
+from training.envs import scene_layout  # noqa: E402
 
 
 def monte_carlo_returns(obs: np.ndarray, next_obs: np.ndarray, reward: np.ndarray, terminated: np.ndarray,
-                        gamma: float, scale: float) -> np.ndarray:
+                        gamma: float, scale: float) -> tuple[np.ndarray, int]:
     """Discounted return (``scale`` x reward, discount ``gamma``) of each transition to the end of its episode,
-    following each transition to the row whose ``obs`` equals its ``next_obs`` byte for byte; NaN where the episode
-    does not end (terminated) within the rows given. Arrays (n, ...) in any order."""
+    following each transition to the row whose ``obs`` equals its ``next_obs`` byte for byte. NaN where the episode
+    does not end (terminated) within the rows given, or where the way there passes an observation that several rows
+    hold (a standstill can repeat one exactly; which row follows would be a guess). Arrays (n, ...) in any order.
+    Returns the returns (n,) and how many rows hold such a repeated observation."""
     n = len(obs)
-    first = {row.tobytes(): i for i, row in enumerate(np.ascontiguousarray(obs))}
-    succ = np.array([first.get(row.tobytes(), -1) for row in np.ascontiguousarray(next_obs)], dtype=np.int64)
+    first: dict[bytes, int] = {}
+    repeated: set[bytes] = set()
+    for i, row in enumerate(np.ascontiguousarray(obs)):
+        key = row.tobytes()
+        if key in first:
+            repeated.add(key)
+        else:
+            first[key] = i
+    succ = np.array([-1 if (key := row.tobytes()) in repeated else first.get(key, -1)
+                     for row in np.ascontiguousarray(next_obs)], dtype=np.int64)
     done = terminated > 0.5
     g = np.full(n, np.nan)
     g[done] = scale * reward[done]
@@ -57,29 +76,27 @@ def monte_carlo_returns(obs: np.ndarray, next_obs: np.ndarray, reward: np.ndarra
             break  # (what is left never reaches an episode's end: cut by the time limit or the buffer)
         g[ready] = scale * reward[ready] + gamma * g[succ[ready]]
         todo &= ~ready
-    return g
+    ambiguous = sum(1 for row in np.ascontiguousarray(obs) if row.tobytes() in repeated) if repeated else 0
+    return g, ambiguous
 
 
 def critic_bias(run: Path, samples: int, seed: int = 0) -> dict[str, float]:
     """The figures of the module docstring for one run folder."""
-    path = run / CHECKPOINT
-    if not path.is_file():
+    if not (run / CHECKPOINT).is_file() and not (run / PREVIOUS).is_file():
         raise CheckpointError(f"{run}: no {CHECKPOINT} (the folder of a DDPG or MDDPG training run holds one)")
-    state = load_checkpoint(path)
-    cfg = checkpoint_config(state, path)
+    state = load_run_checkpoint(run)
+    cfg = checkpoint_config(state, run / CHECKPOINT)
     buf = state["buffer"]
     start = int(buf["n_demo"])  # (demonstrations: not the run's own actions)
     arrays = {k: buf[k][start:].numpy() for k in ("obs", "next_obs", "reward", "terminated", "action")}
-    g = monte_carlo_returns(arrays["obs"], arrays["next_obs"], arrays["reward"], arrays["terminated"], cfg.gamma,
-                            cfg.reward_scale)
+    g, repeated = monte_carlo_returns(arrays["obs"], arrays["next_obs"], arrays["reward"], arrays["terminated"],
+                                      cfg.gamma, cfg.reward_scale)
     known = np.flatnonzero(~np.isnan(g))
     if len(known) == 0:
-        raise CheckpointError(f"{path}: no episode ends within the replay buffer")
+        raise CheckpointError(f"{run}: no episode ends within the replay buffer")
     pick = np.random.default_rng(seed).choice(known, size=min(samples, len(known)), replace=False)
-    probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)  # (the set actor reads the layout)
-    shapes = env_layout(probe).shapes
-    probe.close()
-    agent = DDPGAgent(arrays["obs"].shape[1], arrays["action"].shape[1], cfg, shapes=shapes)
+    layout = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)  # (the set actor reads it)
+    agent = DDPGAgent(arrays["obs"].shape[1], arrays["action"].shape[1], cfg, shapes=layout.shapes)
     agent.load_state_dict(state["agent"])
     t = lambda k: torch.from_numpy(arrays[k][pick])  # noqa: E731
     with torch.no_grad():
@@ -91,11 +108,10 @@ def critic_bias(run: Path, samples: int, seed: int = 0) -> dict[str, float]:
     out = {
         "steps": int(state["step"]), "transitions": len(g), "with_return": len(known) / len(g),
         "return": float(gs.mean()), "q": float(q.mean()), "bias": float((q - gs).mean()),
-        "corr": float(np.corrcoef(q, gs)[0, 1]), "heads": len(heads),
+        "corr": float(np.corrcoef(q, gs)[0, 1]), "heads": len(heads), "repeated": repeated,
     }
     if len(boot) > 1:
         out["disagreement"] = float((boot[0] - boot[1]).abs().mean())
-        out["min_below_mean"] = float((boot.mean(0) - boot.min(0).values).mean())
     return out
 
 
@@ -108,8 +124,8 @@ def main() -> None:
         parser.error("--samples: at least 2")
     print(machine(torch=torch.__version__))
     print("G: Monte Carlo return of the stored action; Q: the critic's TD-target estimate of it (critic units)")
-    print("| run | steps | transitions with G | mean G | mean Q | Q - G | corr | heads disagree | min below mean |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| run | steps | transitions with G | mean G | mean Q | Q - G | corr | heads disagree |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
     failed = False
     for run in args.runs:
         try:
@@ -118,9 +134,12 @@ def main() -> None:
             print(err, file=sys.stderr)
             failed = True
             continue
-        twin = (f"{r['disagreement']:.2f} | {r['min_below_mean']:.2f}" if "disagreement" in r else "- | -")
+        twin = f"{r['disagreement']:.2f}" if "disagreement" in r else "-"
         print(f"| {run.name} | {r['steps']} | {r['with_return']:.0%} of {r['transitions']} | {r['return']:.2f} | "
               f"{r['q']:.2f} | {r['bias']:+.2f} | {r['corr']:.2f} | {twin} |", flush=True)
+        if r["repeated"]:
+            print(f"  ({r['repeated']} rows hold an observation that another row repeats: the returns through them "
+                  "are left out)", flush=True)
     if failed:
         raise SystemExit(1)
 

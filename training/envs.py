@@ -102,6 +102,16 @@ def env_layout(env: DeckSimEnv) -> ObservationLayout:
     return ObservationLayout({k: tuple(v) for k, v in env.composer_env.task.observation_shapes.items()})
 
 
+def scene_layout(scene: str, predictor: str, overrides: dict[str, Any]) -> ObservationLayout:
+    """The layout of one aircraft's flat observation in ``scene`` as ``predictor`` and the scene ``overrides`` make
+    it (built from a probe environment, closed again)."""
+    probe = make_env(scene, predictor, **overrides)
+    try:
+        return env_layout(probe)
+    finally:
+        probe.close()
+
+
 def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]:
     """Scene overrides for a curriculum stage.
 

@@ -63,8 +63,7 @@ from training.envs import (
     Demonstrations,
     ObservationLayout,
     collect_demonstrations,
-    env_layout,
-    make_env,
+    scene_layout,
     stage_overrides,
 )
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
@@ -207,10 +206,7 @@ class Trainer:
     def _agent_layout(self) -> ObservationLayout:
         """The layout of the agent's observation: the full scene's (every curriculum stage is padded to it)."""
         cfg = self.config
-        probe = make_env(cfg.scene, cfg.predictor, **cfg.scene_overrides)
-        layout = env_layout(probe)
-        probe.close()
-        return layout
+        return scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)
 
     def _make_envs(self, backend: str, ray_address: str | None) -> Any:
         """The runner of the run's environments (``training.runners``)."""

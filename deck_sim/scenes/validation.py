@@ -228,7 +228,7 @@ def _validate_agents(spec: SceneSpec, w: str) -> None:
         spec.episode.predictor != "oracle",
         f"{w}.count",
         "the 'oracle' predictor simulates the movers ahead; the other aircraft's futures are their policies' choice, "
-        "so several agents need episode.predictor 'none', 'constant_velocity' or 'mpc'",
+        "so several agents need episode.predictor 'none', 'constant_velocity', 'stationary' or 'mpc'",
     )
     if spec.episode.predictor == "mpc":
         from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
