@@ -111,3 +111,26 @@ def test_the_tasks_constant_velocity_equals_the_predictor_on_the_observed_histor
             kinds=np.zeros(len(first), dtype=int),
         )
         assert np.array_equal(task.last_info["prediction"], predictor.predict(tracks).positions)
+
+
+def test_the_lookahead_reward_is_the_same_whatever_the_agent_observes_and_reads_the_forecast() -> None:
+    """``reward.lookahead_steps``: r2 reads the movers' closest approach along the MPC forecast, the same forecast
+    whether the agent observes it, observes another or none; the observed clearance stays the one now."""
+
+    def run(predictor: str, lookahead: int) -> tuple[list[float], list[float]]:
+        env = deck_sim.load("deck1", seed=3, episode__predictor=predictor, reward__lookahead_steps=lookahead)
+        env.reset()
+        r2, clearance = [], []
+        for _ in range(60):
+            ts = env.step(np.array([0.6, 0.1]))
+            r2.append(env.task.last_info["reward_terms"]["r2"])
+            clearance.append(env.task.last_info["min_clearance"])
+            if ts.last():
+                env.reset()
+        return r2, clearance
+
+    looked, seen = run("mpc", 6)
+    assert run("none", 6) == (looked, seen) and run("constant_velocity", 6) == (looked, seen)
+    paper, seen_paper = run("mpc", 0)
+    assert seen_paper == seen  # the same episode: the reward changes nothing the agent does here
+    assert looked != paper and sum(looked) < sum(paper)  # encounters ahead are penalised before they come

@@ -68,3 +68,33 @@ def test_total_is_the_weighted_sum_of_eq_16(r1, r2, collided, reached, w):
 def test_non_finite_progress_is_refused():
     with pytest.raises(ValueError, match="non-finite"):
         rewards.attraction(np.nan, 1.0, 0.1, 1.0, 0.0)
+
+
+@given(
+    n=st.integers(1, 5),
+    k=st.integers(1, 10),
+    seed=st.integers(0, 2**32 - 1),
+    dt=st.floats(0.1, 1.0),
+)
+def test_a_lookahead_clearance_is_the_closest_approach_and_never_more_than_now(n, k, seed, dt):
+    rng = np.random.default_rng(seed)
+    clear, agent, vel = rng.uniform(0, 30, n), rng.uniform(-50, 50, 2), rng.uniform(-5, 5, 2)
+    movers, forecast = rng.uniform(-50, 50, (n, 2)), rng.uniform(-50, 50, (n, k, 2))
+    out = rewards.lookahead_clearances(clear, agent, vel, movers, forecast, dt)
+    assert np.all(out <= clear)
+    for j in range(n):  # the closest approach over the K steps, counted against the distance now
+        gaps = [np.linalg.norm(forecast[j, i] - (agent + (i + 1) * dt * vel)) for i in range(k)]
+        now = np.linalg.norm(movers[j] - agent)
+        assert out[j] == pytest.approx(clear[j] + min(min(gaps) - now, 0.0), abs=1e-9)
+
+
+@given(gap=st.floats(26, 60), speed=st.floats(0.5, 5), k=st.integers(1, 10))
+def test_a_mover_driving_at_a_standing_agent_counts_as_nearer_and_one_driving_away_as_now(gap, speed, k):
+    agent, still = np.zeros(2), np.zeros(2)
+    mover = np.array([[gap, 0.0]])
+    steps = np.arange(1, k + 1)[:, None] * 0.5 * speed
+    towards = (mover[0] - steps * [1.0, 0.0])[None]
+    away = (mover[0] + steps * [1.0, 0.0])[None]
+    near = rewards.lookahead_clearances(np.array([gap - 2.0]), agent, still, mover, towards, 0.5)
+    assert near[0] == pytest.approx(gap - 2.0 - k * 0.5 * speed, abs=1e-9)  # (it stops short of the agent)
+    assert rewards.lookahead_clearances(np.array([gap - 2.0]), agent, still, mover, away, 0.5)[0] == gap - 2.0

@@ -96,6 +96,20 @@ def test_semantic_errors_are_named():
             parse_scene(data)
 
 
+def test_a_lookahead_beyond_the_horizon_or_with_several_aircraft_is_refused_by_name():
+    with pytest.raises(SceneSpecError, match=r"\[reward\]\.lookahead_steps: expected 0 <= lookahead_steps <= "
+                                             r"episode.horizon 10, got 11"):
+        load_scene("deck1", reward__lookahead_steps=11)
+    with pytest.raises(SceneSpecError, match="expected one of"):
+        load_scene("deck1", reward__lookahead_steps=4, reward__lookahead_predictor="none")
+    with pytest.raises(SceneSpecError, match="several agents need lookahead_steps = 0"):
+        load_scene("deck1-multi", reward__lookahead_steps=4)
+    with pytest.raises(SceneSpecError, match="reward.lookahead_predictor 'mpc' reads the last"):
+        load_scene("deck1", reward__lookahead_steps=4, episode__history=2)
+    assert load_scene("deck1", reward__lookahead_steps=4, episode__history=2,
+                      reward__lookahead_predictor="constant_velocity").reward.lookahead_steps == 4
+
+
 def test_overrides_apply_and_are_validated():
     spec = load_scene("deck1", episode__predictor="oracle", episode__horizon=4)
     assert spec.episode.predictor == "oracle" and spec.episode.horizon == 4

@@ -543,6 +543,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "nstep": {"n_step": 3},
     "per": {"per_alpha": 0.6, "per_beta": 0.4},
     "meanq": {"twin_min_weight": 0.5},
+    "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -563,7 +564,9 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
 the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
 alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
-than their minimum, ``twin_min_weight = 0.5``). Several switches join with ``+``:
+than their minimum, ``twin_min_weight = 0.5``; ``lookahead``: the reward's repulsion term reads each mover's
+closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
+MDDPG alike). Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 

@@ -225,6 +225,11 @@ def _validate_agents(spec: SceneSpec, w: str) -> None:
             f"{k} aircraft need {k} distinct agent.{name} (one each), the scene names {len(set(sites))}",
         )
     _check(
+        spec.reward.lookahead_steps == 0,
+        f"{w}.count",
+        "reward.lookahead_steps looks ahead from one aircraft; several agents need lookahead_steps = 0",
+    )
+    _check(
         spec.episode.predictor != "oracle",
         f"{w}.count",
         "the 'oracle' predictor simulates the movers ahead; the other aircraft's futures are their policies' choice, "
@@ -369,6 +374,11 @@ def _validate_reward(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         "the largest float",
     )
     _check(
+        0 <= r.lookahead_steps <= spec.episode.horizon,
+        f"{w}.lookahead_steps",
+        f"expected 0 <= lookahead_steps <= episode.horizon {spec.episode.horizon}, got {r.lookahead_steps}",
+    )
+    _check(
         0 <= r.progress_deadband < spec.agent.reach,
         f"{w}.progress_deadband",
         f"expected 0 <= progress_deadband < agent.reach {spec.agent.reach} m, got {r.progress_deadband}",
@@ -397,23 +407,27 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         f"route_steps * agent.reach = {e.route_steps} * {a.reach} m exceeds the arena's perimeter "
         f"{arena.perimeter:.1f} m",
     )
-    if e.predictor == "mpc":
+    r = spec.reward
+    uses = "episode.predictor" if e.predictor == "mpc" else None
+    if uses is None and r.lookahead_steps > 0 and r.lookahead_predictor == "mpc":
+        uses = "reward.lookahead_predictor"
+    if uses is not None:
         from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
 
         mpc = MPCPredictorSettings
         _check(
             e.history >= mpc.history,
             f"{w}.history",
-            f"episode.predictor 'mpc' reads the last {mpc.history} samples, got history {e.history}",
+            f"{uses} 'mpc' reads the last {mpc.history} samples, got history {e.history}",
         )
         _check(
             m.count <= mpc.max_movers,
             f"{w}.predictor",
-            f"'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} (movers.tractors + "
-            "movers.aircraft + movers.pedestrians)",
+            f"{uses} 'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} "
+            "(movers.tractors + movers.aircraft + movers.pedestrians)",
         )
         _check(
             len(m.spots) <= mpc.max_spots,
             f"{w}.predictor",
-            f"'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
+            f"{uses} 'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
         )

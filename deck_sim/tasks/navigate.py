@@ -176,6 +176,13 @@ class Navigate(composer.Task):
         # whenever such a predictor exists (CasADi is imported on use only)
         mpc = sys.modules.get("deck_sim.control.mpc_predictor")
         self._mpc = mpc is not None and type(self._predictor) is mpc.MPCPredictor
+        # the repulsion term's look-ahead (``reward.lookahead_steps``): the episode's own forecast where it is the
+        # scene's look-ahead predictor, else a predictor of its own, so that the reward is the same whatever the
+        # agent observes
+        r = spec.reward
+        self._lookahead, self._lookahead_predictor = r.lookahead_steps, None
+        if self._lookahead and (self._predictor.name != r.lookahead_predictor or self._horizon != ep.horizon):
+            self._lookahead_predictor = make_predictor(r.lookahead_predictor, ep.horizon, ep.control_period)
         self._spot_xy = np.array([arena.site(s).xy for s in spec.movers.spots]).reshape(-1, 2)
         self._kinds = np.array(
             [ObstacleKind.PEDESTRIAN if isinstance(m, Pedestrian) else ObstacleKind.WHEELED for m in self._movers],
@@ -365,8 +372,11 @@ class Navigate(composer.Task):
         self._history = np.repeat(self._state["xy"][1:, None, :], spec.episode.history, axis=1)
         self._predictor.reset(self._spot_xy, self._kinds)
         self._prediction = self._predict(physics)
+        if self._lookahead_predictor is not None:
+            self._lookahead_predictor.reset(self._spot_xy, self._kinds)
         self._dist_target = float(np.linalg.norm(layout.target_xy - agent_xy))
         self._clearances = self._clearance_of(self._state)
+        self._repelled = self._repulsion_clearances(physics, self._state, self._clearances)
         self._stepper.start_episode()
         self._reached = self._off_surface = self._diverged = False
         self._terminal = False
@@ -460,6 +470,7 @@ class Navigate(composer.Task):
         to_target = self.layout.target_xy - agent_xy
         dist = math.sqrt(to_target.dot(to_target))  # as np.linalg.norm computes it
         clear = self._clearance_of(st)
+        repelled = self._repulsion_clearances(physics, st, clear)
         r = spec.reward
         collided = stepper.collided_with is not None
         self._reached = dist <= spec.agent.goal_radius and not collided
@@ -470,8 +481,8 @@ class Navigate(composer.Task):
         else:
             r1 = rewards.attraction(self._dist_target, dist, r.attraction_min, r.attraction_max, r.progress_deadband)
             r2 = rewards.repulsion(
-                self._clearances,
-                clear,
+                self._repelled,
+                repelled,
                 r.influence_radius,
                 r.repulsion_min,
                 r.repulsion_max,
@@ -486,7 +497,7 @@ class Navigate(composer.Task):
                 r.goal,
                 (r.w_attraction, r.w_repulsion, r.w_collision, r.w_goal),
             )
-        self._dist_target, self._clearances = dist, clear
+        self._dist_target, self._clearances, self._repelled = dist, clear, repelled
         self._terminal = self._reached or failed or self._diverged
         if self._diverged:
             log.warning("%s: physics diverged at t=%.2f s; episode ended", spec.name, physics.data.time)
@@ -509,7 +520,33 @@ class Navigate(composer.Task):
     def _mover_footprints(self, st: dict[str, np.ndarray]) -> Footprints:
         return Footprints(st["xy"][1:], self._mover_half, st["yaw"][1:], self._mover_radius_fp)
 
-    def _predict(self, physics: mjcf.Physics) -> Prediction:
+    def _repulsion_clearances(self, physics: mjcf.Physics, st: dict[str, np.ndarray], clear: np.ndarray
+                              ) -> np.ndarray:
+        """The clearances (k,) that r2 reads, metres: ``clear`` itself, or with ``reward.lookahead_steps`` = K > 0
+        each mover's clearance less how much nearer its centre comes to the agent's within K steps (the agent
+        carried on at its current velocity, the mover along the look-ahead forecast), never more than now."""
+        if not self._lookahead or not len(self._kinds):
+            return clear
+        forecast = (
+            self._prediction.positions
+            if self._lookahead_predictor is None
+            else self._predict(physics, self._lookahead_predictor).positions
+        )[:, : self._lookahead]
+        xy, n = st["xy"], len(self._kinds)
+        out = clear.copy()
+        out[-n:] = rewards.lookahead_clearances(
+            clear[-n:], xy[0], st["vel"][0], xy[1:], forecast, self.spec.episode.control_period
+        )
+        return out
+
+    def _predict(self, physics: mjcf.Physics, predictor: Predictor | None = None) -> Prediction:
+        """The forecast of the episode's predictor, or of ``predictor`` (the reward's look-ahead)."""
+        if predictor is not None:
+            future = self.simulate_future(physics, predictor.horizon) if predictor.needs_future else None
+            tracks = ObstacleTracks(
+                dt=self.spec.episode.control_period, positions=self._history, kinds=self._kinds, future=future
+            )
+            return predictor.predict(tracks)
         if not len(self._kinds):
             return Prediction(np.zeros((0, self._horizon, 2)), np.zeros(0, dtype=bool))
         if type(self._predictor) is ConstantVelocity:

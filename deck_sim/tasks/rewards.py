@@ -5,7 +5,9 @@ clip(d, -L, -l); so every step's attraction has a magnitude between l and L with
 r2 (obstacle repulsion): same shape with bounds h, H on the change of clearance to the nearest obstacle within
 the influence radius. **Sign decision** (paper.md): the printed formula rewards approaching an obstacle, which
 contradicts "repulsion"; here d = D_obs(t+1) - D_obs(t), so moving away is rewarded and closing in penalised.
-r3 on collision, r4 on reaching the target; R = w1 r1 + w2 r2 + w3 r3 + w4 r4 (eq. 16).
+With a look-ahead (``lookahead_clearances``) a mover's clearance in r2 is the one at its closest point of
+approach over the next few steps of a forecast. r3 on collision, r4 on reaching the target;
+R = w1 r1 + w2 r2 + w3 r3 + w4 r4 (eq. 16).
 A dead band on |d| (``progress_deadband``) keeps numerical jitter of a standing vehicle from earning +l or -l.
 """
 
@@ -52,6 +54,32 @@ def repulsion(
     if clearances_after[j] >= influence_radius:
         return 0.0
     return shaped(float(clearances_after[j] - clearances_before[j]), lo, hi, deadband)
+
+
+def lookahead_clearances(
+    clearances: np.ndarray,
+    agent_xy: np.ndarray,
+    agent_velocity: np.ndarray,
+    mover_xy: np.ndarray,
+    forecast: np.ndarray,
+    dt: float,
+) -> np.ndarray:
+    """The movers' clearances that r2 reads with a look-ahead (scene field ``reward.lookahead_steps``), metres.
+
+    Each mover's clearance now, less how much nearer its centre comes to the agent's over the forecast's K steps
+    (the agent carried on at ``agent_velocity``, the mover along ``forecast``): the clearance at the closest point
+    of approach within K steps, never more than now.
+
+    Args:
+        clearances: (n,) each mover's clearance now, metres.
+        agent_xy, agent_velocity: (2,) the agent's position (metres) and planar velocity (m/s).
+        mover_xy: (n, 2) the movers' positions now, metres.
+        forecast: (n, K, 2) the movers' forecast positions, one every ``dt`` seconds from now, metres.
+    """
+    ahead = agent_xy + np.arange(1, forecast.shape[1] + 1)[:, None] * dt * agent_velocity  # (K, 2)
+    now = np.linalg.norm(mover_xy - agent_xy, axis=-1)
+    closest = np.linalg.norm(forecast - ahead[None], axis=-1).min(axis=-1, initial=np.inf)
+    return clearances + np.minimum(closest - now, 0.0)
 
 
 @dataclass(frozen=True)
