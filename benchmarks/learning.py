@@ -42,7 +42,9 @@ import csv  # noqa: E402
 import json  # noqa: E402
 import multiprocessing  # noqa: E402
 import multiprocessing.connection  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -257,6 +259,11 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
     running: list[tuple[multiprocessing.process.BaseProcess, Path, Path, float]] = []
     failed: list[str] = []
     print(f"training {len(pending)} runs, {jobs} at a time; each run's progress in <run folder>.log", flush=True)
+    if threading.current_thread() is threading.main_thread():
+        # every run's trainer stops at its checkpoint on SIGINT whatever it inherited, so this process must hear it
+        # too even when started with SIGINT ignored (a background job of a script), or a Ctrl-C sent to the group
+        # would stop the running runs and leave it starting the next ones
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         while pending or running:
             while pending and len(running) < jobs:

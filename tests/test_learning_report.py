@@ -92,7 +92,9 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
     runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
     proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True,  # (its own group, as a terminal's foreground job)
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # (not a shell's ignore)
+                            # started with SIGINT ignored, as a script's background job is: Ctrl-C to the group
+                            # still stops it rather than only its runs
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         deadline = time.monotonic() + 300
         # both runs are training (each has logged its first 1,000 steps) before Ctrl-C reaches the process group
