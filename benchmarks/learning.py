@@ -238,12 +238,18 @@ def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> 
 
 
 def _train_job(cfg: object, run: Path, resume: bool, log: Path) -> None:
-    """One ``--jobs`` process: ``train_one`` with its output in ``log``, exit code 1 on a ``TrainingError``."""
+    """One ``--jobs`` process: ``train_one`` with its output in ``log``, exit code 1 on a ``TrainingError``. A
+    Ctrl-C that reaches it outside the trainer's loop (which stops at a checkpoint) ends it as a stopped run too:
+    what it had written (checkpoints are written atomically) is where running the command again resumes."""
     try:
         train_one(cfg, run, resume, log)
     except TrainingError as err:
         print(err, file=sys.stderr, flush=True)
         raise SystemExit(1) from err
+    except KeyboardInterrupt:
+        print(f"{run.name}: interrupted outside the training loop; it resumes from its last checkpoint", flush=True)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # (nothing is left to stop)
 
 
 def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs: int, report_every: float = 300.0
@@ -284,6 +290,9 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
     except KeyboardInterrupt:
         print("interrupted: waiting for the running runs to stop at their checkpoints (run the command again to "
               "resume them)", flush=True)
+        if threading.current_thread() is threading.main_thread():  # (a second Ctrl-C would only lose the report)
+            signal.signal(signal.SIGINT, lambda *_: print("still waiting for the runs to reach their checkpoints",
+                                                          flush=True))
         for item in running:
             _report_end(*item, failed)
         raise SystemExit(130) from None

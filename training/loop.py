@@ -316,7 +316,7 @@ class Trainer:
                     )
                 if cfg.checkpoint_every and self._crossed(cfg.checkpoint_every):
                     self.save_checkpoint()
-        self.save_checkpoint()
+            self.save_checkpoint()  # (still inside: a second Ctrl-C while it writes only asks to stop again)
         if self.step >= cfg.total_steps:
             last_eval = finish(self, last_eval)
         self.runlog.close_tensorboard()
