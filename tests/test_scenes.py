@@ -104,8 +104,11 @@ def test_a_lookahead_beyond_the_horizon_or_with_several_aircraft_is_refused_by_n
         load_scene("deck1", reward__lookahead_steps=4, reward__lookahead_predictor="none")
     with pytest.raises(SceneSpecError, match="several agents need lookahead_steps = 0"):
         load_scene("deck1-multi", reward__lookahead_steps=4)
-    with pytest.raises(SceneSpecError, match="reward.lookahead_predictor 'mpc' reads the last"):
+    with pytest.raises(SceneSpecError, match=r"\[episode\]\.history: reward.lookahead_predictor 'mpc' reads the last"):
         load_scene("deck1", reward__lookahead_steps=4, episode__history=2)
+    with pytest.raises(SceneSpecError, match=r"\[reward\]\.lookahead_predictor: reward.lookahead_predictor 'mpc' is "
+                                             r"compiled for at most \d+ movers"):
+        load_scene("deck1", reward__lookahead_steps=4, movers__tractors=40)
     assert load_scene("deck1", reward__lookahead_steps=4, episode__history=2,
                       reward__lookahead_predictor="constant_velocity").reward.lookahead_steps == 4
 

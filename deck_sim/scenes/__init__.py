@@ -207,10 +207,11 @@ class RewardSpec:
     (a full step's progress)."""
     lookahead_steps: int = 0
     """Control steps that the repulsion term r2 looks ahead at the movers; 0 (the default): the paper's, every
-    obstacle's clearance now. With k > 0 a mover's clearance in r2 is its least over now and the next k steps,
-    the agent carried on at its current velocity and the mover along the forecast of ``lookahead_predictor``
-    (the closest point of approach within k steps), so that r2 penalises steps that bring a predicted encounter
-    closer. The reward is the scene's: the same whatever the agent observes. In [0, ``episode.horizon``]."""
+    obstacle's clearance now. With k > 0 a mover's clearance in r2 is its footprint clearance now less how much
+    nearer the two centres come within the next k steps (never more than now), the agent carried on at its current
+    velocity and the mover along the forecast of ``lookahead_predictor``: the closest point of approach, between
+    centres, so that r2 penalises steps that bring a predicted encounter closer. The reward is the scene's: the
+    same whatever the agent observes. In [0, ``episode.horizon``]."""
     lookahead_predictor: Literal["constant_velocity", "stationary", "oracle", "mpc"] = "mpc"
     """The predictor whose forecast r2 reads when ``lookahead_steps`` > 0, built with ``episode.horizon`` steps
     whatever the agent observes; where the episode's own predictor is the same, its forecast is reused."""

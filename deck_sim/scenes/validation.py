@@ -226,7 +226,7 @@ def _validate_agents(spec: SceneSpec, w: str) -> None:
         )
     _check(
         spec.reward.lookahead_steps == 0,
-        f"{w}.count",
+        f"{w}.count",  # (with agents.count; the message names the reward's field)
         "reward.lookahead_steps looks ahead from one aircraft; several agents need lookahead_steps = 0",
     )
     _check(
@@ -408,9 +408,9 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         f"{arena.perimeter:.1f} m",
     )
     r = spec.reward
-    uses = "episode.predictor" if e.predictor == "mpc" else None
+    uses, field = ("episode.predictor", f"{w}.predictor") if e.predictor == "mpc" else (None, "")
     if uses is None and r.lookahead_steps > 0 and r.lookahead_predictor == "mpc":
-        uses = "reward.lookahead_predictor"
+        uses, field = "reward.lookahead_predictor", w.replace("[episode]", "[reward]") + ".lookahead_predictor"
     if uses is not None:
         from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
 
@@ -422,12 +422,12 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         )
         _check(
             m.count <= mpc.max_movers,
-            f"{w}.predictor",
+            field,
             f"{uses} 'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} "
             "(movers.tractors + movers.aircraft + movers.pedestrians)",
         )
         _check(
             len(m.spots) <= mpc.max_spots,
-            f"{w}.predictor",
+            field,
             f"{uses} 'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
         )

@@ -176,12 +176,12 @@ class Navigate(composer.Task):
         # whenever such a predictor exists (CasADi is imported on use only)
         mpc = sys.modules.get("deck_sim.control.mpc_predictor")
         self._mpc = mpc is not None and type(self._predictor) is mpc.MPCPredictor
-        # the repulsion term's look-ahead (``reward.lookahead_steps``): the episode's own forecast where it is the
-        # scene's look-ahead predictor, else a predictor of its own, so that the reward is the same whatever the
-        # agent observes
+        # the repulsion term's look-ahead (``reward.lookahead_steps``): the episode's own forecast where the scene
+        # built it as the look-ahead's predictor, else a predictor of its own, so that the reward is the same
+        # whatever the agent observes (a predictor handed in is never taken for the scene's)
         r = spec.reward
         self._lookahead, self._lookahead_predictor = r.lookahead_steps, None
-        if self._lookahead and (self._predictor.name != r.lookahead_predictor or self._horizon != ep.horizon):
+        if self._lookahead and (predictor is not None or ep.predictor != r.lookahead_predictor):
             self._lookahead_predictor = make_predictor(r.lookahead_predictor, ep.horizon, ep.control_period)
         self._spot_xy = np.array([arena.site(s).xy for s in spec.movers.spots]).reshape(-1, 2)
         self._kinds = np.array(

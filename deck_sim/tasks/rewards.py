@@ -5,9 +5,9 @@ clip(d, -L, -l); so every step's attraction has a magnitude between l and L with
 r2 (obstacle repulsion): same shape with bounds h, H on the change of clearance to the nearest obstacle within
 the influence radius. **Sign decision** (paper.md): the printed formula rewards approaching an obstacle, which
 contradicts "repulsion"; here d = D_obs(t+1) - D_obs(t), so moving away is rewarded and closing in penalised.
-With a look-ahead (``lookahead_clearances``) a mover's clearance in r2 is the one at its closest point of
-approach over the next few steps of a forecast. r3 on collision, r4 on reaching the target;
-R = w1 r1 + w2 r2 + w3 r3 + w4 r4 (eq. 16).
+With a look-ahead (``lookahead_clearances``) a mover's clearance in r2 is lowered by how much nearer its centre
+comes at its closest point of approach over the next few steps of a forecast. r3 on collision, r4 on reaching
+the target; R = w1 r1 + w2 r2 + w3 r3 + w4 r4 (eq. 16).
 A dead band on |d| (``progress_deadband``) keeps numerical jitter of a standing vehicle from earning +l or -l.
 """
 
@@ -67,8 +67,8 @@ def lookahead_clearances(
     """The movers' clearances that r2 reads with a look-ahead (scene field ``reward.lookahead_steps``), metres.
 
     Each mover's clearance now, less how much nearer its centre comes to the agent's over the forecast's K steps
-    (the agent carried on at ``agent_velocity``, the mover along ``forecast``): the clearance at the closest point
-    of approach within K steps, never more than now.
+    (the agent carried on at ``agent_velocity``, the mover along ``forecast``): the closest point of approach within
+    K steps, measured between centres and counted against the footprint clearance now, never more than now.
 
     Args:
         clearances: (n,) each mover's clearance now, metres.
