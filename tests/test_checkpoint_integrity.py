@@ -100,6 +100,27 @@ def test_each_checkpoint_carries_its_checksum_and_the_one_before_is_kept(run):
     assert not list(run.glob("*.tmp"))
 
 
+def test_a_save_stopped_before_its_last_rename_leaves_the_checkpoint_it_was_replacing(run, tmp_path, monkeypatch):
+    """A Ctrl-C (or a crash) between keeping the old checkpoint as ``checkpoint.prev.pt`` and putting the new one
+    in place: ``checkpoint.pt`` is still there, the old one, and so is the new one's temporary file."""
+    from training import checkpoints
+
+    copy = _copy(run, tmp_path)
+    real = checkpoints.os.replace
+
+    def stopped_at_the_last_rename(src, dst):  # noqa: ANN001, ANN202
+        if Path(dst).name == "checkpoint.pt":
+            raise KeyboardInterrupt
+        return real(src, dst)
+
+    monkeypatch.setattr(checkpoints.os, "replace", stopped_at_the_last_rename)
+    with pytest.raises(KeyboardInterrupt):
+        checkpoints._write({"step": 99}, copy / "checkpoint.pt")
+    monkeypatch.undo()
+    assert load_checkpoint(copy / "checkpoint.pt")["step"] == STOP
+    assert load_checkpoint(copy / "checkpoint.prev.pt")["step"] == STOP
+
+
 def test_a_checkpoint_without_a_checksum_loads_with_one_warning(run, tmp_path, caplog):
     """The format of a plain ``torch.save``: run folders holding one keep resuming."""
     path = tmp_path / "checkpoint.pt"

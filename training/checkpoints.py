@@ -93,7 +93,15 @@ def _write(state: dict[str, Any], path: Path) -> None:
         f.flush()
         os.fsync(f.fileno())
     if path.exists():
-        os.replace(path, path.with_name(PREVIOUS))
+        # the file it replaces is linked, not moved, to PREVIOUS: a stop between the two renames still leaves a
+        # checkpoint under ``path``
+        linked = path.with_name(PREVIOUS + ".tmp")
+        linked.unlink(missing_ok=True)
+        try:
+            os.link(path, linked)
+            os.replace(linked, path.with_name(PREVIOUS))
+        except OSError:  # (a filesystem without hard links)
+            os.replace(path, path.with_name(PREVIOUS))
     os.replace(tmp, path)
 
 
