@@ -46,6 +46,7 @@ import signal  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
+from multiprocessing import resource_tracker  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -242,14 +243,18 @@ def _train_job(cfg: object, run: Path, resume: bool, log: Path) -> None:
     Ctrl-C that reaches it outside the trainer's loop (which stops at a checkpoint) ends it as a stopped run too:
     what it had written (checkpoints are written atomically) is where running the command again resumes."""
     try:
+        # (started with SIGINT blocked, so that a Ctrl-C while this interpreter imports waits here to be taken)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         train_one(cfg, run, resume, log)
     except TrainingError as err:
         print(err, file=sys.stderr, flush=True)
         raise SystemExit(1) from err
     except KeyboardInterrupt:
-        print(f"{run.name}: interrupted outside the training loop; it resumes from its last checkpoint", flush=True)
-    finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # (nothing is left to stop)
+        print(f"{run.name}: interrupted outside the training loop; running the command again resumes it from its "
+              "last checkpoint, if it has one", flush=True)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs: int, report_every: float = 300.0
@@ -261,6 +266,9 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
     whose process ends without its final actor (it was interrupted) is reported as stopped, not finished. Exits
     naming each run that failed, and its log, once the others have finished."""
     ctx = multiprocessing.get_context("spawn")  # (fresh interpreters: no torch state forked into the runs)
+    # multiprocessing's resource tracker, started with the first process, unblocks SIGINT as it starts itself:
+    # started first, it leaves the block below to every run
+    resource_tracker.ensure_running()
     pending = list(to_train)
     running: list[tuple[multiprocessing.process.BaseProcess, Path, Path, float]] = []
     failed: list[str] = []
@@ -277,16 +285,23 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
                 run.parent.mkdir(parents=True, exist_ok=True)
                 log = run.parent / f"{run.name}.log"
                 proc = ctx.Process(target=_train_job, args=(cfg, run, resume, log), name=run.name)
-                proc.start()
-                running.append((proc, run, log, time.monotonic()))
-                print(f"{starting(arm, seed, run, resume)}, log {log}", flush=True)
+                # SIGINT blocked while the process starts: it inherits the block, so a Ctrl-C during its imports
+                # stays pending until ``_train_job`` can take it, and this process takes its own once the new
+                # run is among those it waits for
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+                try:
+                    proc.start()
+                    running.append((proc, run, log, time.monotonic()))
+                    print(f"{starting(arm, seed, run, resume)}, log {log}", flush=True)
+                finally:
+                    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
             ready = multiprocessing.connection.wait([p.sentinel for p, *_ in running], timeout=report_every)
             if not ready:
                 for _, run, log, _ in running:
                     print(f"  {run.name}: {last_line(log)}", flush=True)
             for item in [r for r in running if r[0].sentinel in ready]:
-                running.remove(item)
                 _report_end(*item, failed)
+                running.remove(item)
     except KeyboardInterrupt:
         print("interrupted: waiting for the running runs to stop at their checkpoints (run the command again to "
               "resume them)", flush=True)

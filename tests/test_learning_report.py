@@ -124,3 +124,45 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
         assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
         assert (run / "actor.npz").exists()
         assert (run / "eval.csv").read_text().splitlines()[-1].startswith("2400,")
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_runs_start_stops_them_without_a_failure(tmp_path):
+    """The runs' interpreters are still importing when Ctrl-C reaches the group: each takes it once it can (it
+    starts with SIGINT blocked), ends as a stopped run, and the same command then trains both."""
+    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg", "--seeds", "0,1", "--steps", "300",
+            "--eval-every", "150", "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
+    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        while len(_children(proc.pid, "spawn_main")) < 2:  # both runs' processes exist, neither has its log yet
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the runs' processes did not start within 120 s"
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130 and "Traceback" not in err and "FAILED" not in out, out + err
+    assert out.count("unfinished (run again to resume)") == 2
+    again = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    for seed in (0, 1):
+        assert (tmp_path / f"deck1-paper-ddpg-seed{seed}" / "actor.npz").exists()
+
+
+def _children(pid: int, marker: str) -> list[int]:
+    """The processes whose parent is ``pid`` and whose command line holds ``marker`` (Linux's /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes().decode(errors="replace")
+        except (OSError, ValueError):
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and marker in cmdline:
+            found.append(int(entry.name))
+    return found
