@@ -34,6 +34,38 @@ def test_sb3_baselines_train_evaluate_and_resume(tmp_path, algo):
         assert any(np.allclose(action, row) for row in discrete_actions())
 
 
+@pytest.mark.parametrize("algo", ["dqn", "a2c"])
+def test_ctrl_c_stops_a_baseline_run_with_its_model_saved_and_resume_finishes_it(tmp_path, algo, monkeypatch):
+    """Ctrl-C during learning (here raised from the 40th environment step) stops the run after that step: the
+    model and its normalisation are saved whole, no actor is exported, and ``resume`` trains on to the end."""
+    import signal
+
+    from deck_sim.wrappers import DeckSimEnv
+    from training.baselines import load_baseline, train_baseline
+
+    out = tmp_path / algo
+    kwargs = {"learning_starts": 20, "buffer_size": 1000} if algo == "dqn" else {"n_steps": 8}
+    real_step, calls = DeckSimEnv.step, []
+
+    def step_then_ctrl_c(self, action):  # noqa: ANN001, ANN202
+        calls.append(1)
+        if len(calls) == 40:
+            signal.raise_signal(signal.SIGINT)
+        return real_step(self, action)
+
+    monkeypatch.setattr(DeckSimEnv, "step", step_then_ctrl_c)
+    stopped = train_baseline(
+        algo, "deck1", 400, 0, out, progress=False, eval_every=0, eval_episodes=1, log_every=16, **kwargs
+    )
+    monkeypatch.undo()
+    assert stopped["stopped"] and 40 <= stopped["step"] < 400
+    assert not (out / "actor.npz").exists() and not list(out.glob("*.tmp*"))
+    assert load_baseline(out) is not None
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # (the handler is given back)
+    done = train_baseline(algo, "deck1", 400, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
+    assert not done["stopped"] and done["step"] == 400 and (out / "actor.npz").exists()
+
+
 def test_the_baseline_config_names_a_bad_field_before_any_run_folder_is_made(tmp_path):
     from training.baselines import A2CConfig, DQNConfig, baseline_config, train_baseline
     from training.config import ConfigError

@@ -21,12 +21,16 @@ held-out evaluation so far and ``actor.npz`` at the end. DQN's file is its Q-net
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
 import os
+import signal
+import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -256,7 +260,9 @@ def train_baseline(
     to ``steps``, which may not be below the steps it has done (``CheckpointError`` naming both, before anything is
     written). Returns the last held-out evaluation and the run's counters, in the shape ``Trainer.train`` returns.
     Writes ``actor_best.npz`` (best periodic evaluation) and ``actor.npz`` (final) for
-    ``deck_sim.policies.LearnedPolicy``.
+    ``deck_sim.policies.LearnedPolicy``. Ctrl-C stops the run after its current step with the model and its
+    normalisation saved (each file written whole, then renamed) and no actor exported; the summary's ``stopped``
+    is then true and ``resume`` goes on from that step.
     """
     if "total_steps" in overrides:
         raise ConfigError("total_steps: given by the steps argument (deck-sim train --steps)")
@@ -417,17 +423,33 @@ def train_baseline(
             if eval_every and n // eval_every > self.eval_block:
                 self.eval_block = n // eval_every
                 self.last_eval, self.last_eval_step = evaluate(n, time.perf_counter() - self.t0), n
-                model.save(str(model_path))
-                venv.save(str(norm_path))
-            return True
+                save()
+            return not stop["requested"]
+
+    def save() -> None:  # each file written whole under another name, then renamed over the last
+        tmp_model, tmp_norm = out / "model.tmp.zip", out / "vecnormalize.tmp.pkl"
+        model.save(str(tmp_model))
+        venv.save(str(tmp_norm))
+        os.replace(tmp_model, model_path)
+        os.replace(tmp_norm, norm_path)
 
     logger = Logger()
     t0 = time.perf_counter()
     remaining = max(0, steps - done_steps)
-    model.learn(total_timesteps=remaining, callback=logger, reset_num_timesteps=not resume, tb_log_name=algo)
-    logger.bar.close()
-    model.save(str(model_path))
-    venv.save(str(norm_path))
+    stop = {"requested": False}
+    with _stop_on_sigint(stop):
+        model.learn(total_timesteps=remaining, callback=logger, reset_num_timesteps=not resume, tb_log_name=algo)
+        logger.bar.close()
+        save()
+    if stop["requested"] and model.num_timesteps < steps:
+        log.warning("stopped at step %d of %d; --resume goes on from there", model.num_timesteps, steps)
+        return {
+            "step": int(model.num_timesteps),
+            "wall_s": time.perf_counter() - t0,
+            "episodes": logger.episodes,
+            "eval": logger.last_eval,
+            "stopped": True,
+        }
     last = logger.last_eval if logger.last_eval_step == model.num_timesteps else {}
     if not last:
         last = evaluate(int(model.num_timesteps), time.perf_counter() - t0)
@@ -439,6 +461,24 @@ def train_baseline(
         "eval": last,
         "stopped": False,
     }
+
+
+@contextlib.contextmanager
+def _stop_on_sigint(stop: dict[str, bool]) -> Iterator[None]:
+    """Inside: Ctrl-C sets ``stop["requested"]`` (the run stops after its current step and saves its model), in
+    the main thread; the previous handler is back afterwards."""
+
+    def on_sigint(signum: int, frame: Any) -> None:  # noqa: ARG001
+        log.warning("interrupted: stopping after this step with the model saved (resume with --resume)")
+        stop["requested"] = True
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 def _first_line(err: BaseException) -> str:
