@@ -12,7 +12,7 @@ machine; and writes ``--out/tuning_<recipe>.json``. The winner's fields go into 
 
     python benchmarks/baseline_tuning.py [--recipe deck1-reward] [--algos dqn,a2c] [--variants recipe,lr3e-4]
                                          [--steps 200000] [--seeds 0,1] [--eval-every 50000]
-                                         [--eval-episodes 100] [--out runs/tuning] [--no-train]
+                                         [--eval-episodes 100] [--out runs/tuning] [--jobs 2] [--no-train]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
-from learning import read_eval  # noqa: E402
+from learning import read_eval, train_runs  # noqa: E402
 
 from deck_sim.metrics import mean_interval  # noqa: E402
 from training.config import ConfigError  # noqa: E402
@@ -75,6 +75,8 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", default="runs/tuning")
+    parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, each in its own process "
+                        "(Ctrl-C stops every run at its last step with the model saved; run again to resume)")
     parser.add_argument("--no-train", action="store_true", help="report the runs as they stand; train nothing")
     args = parser.parse_args()
     try:
@@ -94,6 +96,16 @@ def main() -> None:
                          + "; ".join(f"{a}: {', '.join(VARIANTS[a])}" for a in algos))
     print(machine(torch=torch.__version__))
     out = Path(args.out)
+    to_train = []
+    for algo in algos:
+        for variant, fields in VARIANTS[algo].items():
+            for seed in seeds if wanted is None or variant in wanted else ():
+                run = run_folder(out, recipe.name, algo, variant, seed)
+                if not (run / "actor.npz").exists() and not args.no_train:
+                    cfg = recipe.run(algo, seed, args.steps, eval_every=args.eval_every,
+                                     eval_episodes=args.eval_episodes, **fields)
+                    to_train.append((f"{algo} {variant}", seed, run, cfg, (run / "model.zip").exists()))
+    train_runs(to_train, args.jobs)
     report: dict[str, dict[str, Any]] = {}
     for algo in algos:
         rows = []
@@ -103,15 +115,6 @@ def main() -> None:
             last, best = [], []
             for seed in seeds:
                 run = run_folder(out, recipe.name, algo, variant, seed)
-                if not (run / "actor.npz").exists() and not args.no_train:
-                    from training.baselines import train_baseline
-
-                    cfg = recipe.run(algo, seed, args.steps, eval_every=args.eval_every,
-                                     eval_episodes=args.eval_episodes, **fields)
-                    resume = (run / "model.zip").exists()
-                    print(f"training {algo} {variant} seed {seed} -> {run}" + (" (resuming)" if resume else ""),
-                          flush=True)
-                    train_baseline(**cfg, out=run, resume=resume)
                 if not (run / "eval.csv").exists() or not read_eval(run):
                     print(f"{run}: no evaluation yet, left out", flush=True)
                     continue

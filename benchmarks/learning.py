@@ -119,15 +119,7 @@ def main() -> None:
                 raise SystemExit(str(err)) from err
             resume = (run / ("model.zip" if isinstance(cfg, dict) else "checkpoint.pt")).exists()
             to_train.append((arm, seed, run, cfg, resume))
-    if args.jobs > 1 and len(to_train) > 1:
-        train_in_parallel(to_train, args.jobs)
-    else:
-        for arm, seed, run, cfg, resume in to_train:
-            print(starting(arm, seed, run, resume), flush=True)
-            try:
-                train_one(cfg, run, resume)
-            except TrainingError as err:
-                raise SystemExit(str(err)) from err
+    train_runs(to_train, args.jobs)
     for arm, seed, run in planned:
         if not (run / "eval.csv").exists() or not read_eval(run):
             print(f"{run}: no evaluation yet, left out", flush=True)
@@ -255,6 +247,24 @@ def _train_job(cfg: object, run: Path, resume: bool, log: Path) -> None:
               "last checkpoint, if it has one", flush=True)
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def train_runs(to_train: list[tuple[str, int, Path, object, bool]], jobs: int) -> None:
+    """Train the runs of ``to_train`` (arm, seed, run folder, config, resume) in order: in up to ``jobs`` processes
+    at once (``train_in_parallel``) or, with one job, here one after another. A run that ends unfinished (Ctrl-C
+    stopped it at its checkpoint) ends the command with code 130 before the next one starts."""
+    if jobs > 1 and len(to_train) > 1:
+        train_in_parallel(to_train, jobs)
+        return
+    for arm, seed, run, cfg, resume in to_train:
+        print(starting(arm, seed, run, resume), flush=True)
+        try:
+            train_one(cfg, run, resume)
+        except TrainingError as err:
+            raise SystemExit(str(err)) from err
+        if not (run / "actor.npz").exists():
+            print(f"stopped {run.name}, unfinished: run the command again to resume it", flush=True)
+            raise SystemExit(130)
 
 
 def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs: int, report_every: float = 300.0

@@ -166,3 +166,27 @@ def _children(pid: int, marker: str) -> list[int]:
         if int(stat.rsplit(")", 1)[1].split()[1]) == pid and marker in cmdline:
             found.append(int(entry.name))
     return found
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(tmp_path):
+    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg,paper-mddpg", "--steps", "3000",
+            "--eval-every", "1500", "--eval-episodes", "1", "--out", str(tmp_path)]
+    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+    first = tmp_path / "deck1-paper-ddpg-seed0"
+    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 300
+        while not ((first / "progress.csv").exists() and len((first / "progress.csv").read_text().splitlines()) > 1):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the first run logged no 1,000 steps within 300 s"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "stopped deck1-paper-ddpg-seed0, unfinished: run the command again to resume it" in out
+    assert (first / "checkpoint.pt").exists() and not (tmp_path / "deck1-paper-mddpg-seed0").exists()
