@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -55,8 +56,7 @@ def test_unknown_recipe_is_refused_by_name(tmp_path):
 
 
 def _learning(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "benchmarks/learning.py", *args], cwd=ROOT,
-                          env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"},
+    return subprocess.run([sys.executable, "benchmarks/learning.py", *args], cwd=ROOT, env=ENV,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -83,75 +83,42 @@ def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_
     assert "checkpoint" in (tmp_path / "bad" / "deck1-paper-ddpg-seed0.log").read_text()
 
 
-@pytest.mark.slow
-def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(tmp_path):
-    # (reward-ddpg steps its 8 environments in a worker process, which the terminal's Ctrl-C reaches too)
-    args = [sys.executable, "benchmarks/learning.py", "--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "2400",
-            "--eval-every", "1200", "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
-    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
-    runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
-    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True,  # (its own group, as a terminal's foreground job)
-                            # started with SIGINT ignored, as a script's background job is: Ctrl-C to the group
-                            # still stops it rather than only its runs
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+ENV = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+
+
+def _ctrl_c(args: list[str], when: Callable[[int], bool], what: str, inherited: signal.Handlers = signal.SIG_DFL,
+            twice: bool = False) -> tuple[int, str, str]:
+    """Run ``learning.py`` with ``args`` in its own process group (as a terminal's foreground job), started with
+    SIGINT ``inherited`` (``SIG_IGN``: as a script's background job), and send the group Ctrl-C once ``when(pid)``
+    holds (``what`` names the wait in a failure), again 0.3 s later with ``twice``. Returns its exit code, output
+    and error output."""
+    proc = subprocess.Popen([sys.executable, "benchmarks/learning.py", *args], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, inherited))
     try:
         deadline = time.monotonic() + 300
-        # both runs are training (each has logged its first 1,000 steps) before Ctrl-C reaches the process group
-        while not all((r / "progress.csv").exists() and len((r / "progress.csv").read_text().splitlines()) > 1
-                      for r in runs):
+        while not when(proc.pid):
             assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the runs logged no 1,000 steps within 300 s"
-            time.sleep(0.2)
-        os.killpg(proc.pid, signal.SIGINT)
-        time.sleep(0.3)
-        try:  # an impatient second Ctrl-C while it waits: the same ending, no traceback
-            os.killpg(proc.pid, signal.SIGINT)
-        except ProcessLookupError:  # (everything had stopped already)
-            pass
-        out, err = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130 and "Traceback" not in err, err
-    assert "interrupted: waiting for the running runs to stop at their checkpoints" in out
-    for run in runs:
-        assert f"stopped {run.name} after" in out and "unfinished (run again to resume)" in out
-        assert (run / "checkpoint.pt").exists() and not (run / "actor.npz").exists()
-    again = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert again.returncode == 0, again.stderr
-    for run in runs:
-        assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
-        assert (run / "actor.npz").exists()
-        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("2400,")
-
-
-@pytest.mark.slow
-def test_a_ctrl_c_while_the_runs_start_stops_them_without_a_failure(tmp_path):
-    """The runs' interpreters are still importing when Ctrl-C reaches the group: each takes it once it can (it
-    starts with SIGINT blocked), ends as a stopped run, and the same command then trains both."""
-    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg", "--seeds", "0,1", "--steps", "300",
-            "--eval-every", "150", "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
-    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
-        deadline = time.monotonic() + 120
-        while len(_children(proc.pid, "spawn_main")) < 2:  # both runs' processes exist, neither has its log yet
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the runs' processes did not start within 120 s"
+            assert time.monotonic() < deadline, f"{what} within 300 s"
             time.sleep(0.02)
         os.killpg(proc.pid, signal.SIGINT)
+        if twice:
+            time.sleep(0.3)
+            try:
+                os.killpg(proc.pid, signal.SIGINT)
+            except ProcessLookupError:  # (everything had stopped already)
+                pass
         out, err = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130 and "Traceback" not in err and "FAILED" not in out, out + err
-    assert out.count("unfinished (run again to resume)") == 2
-    again = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert again.returncode == 0, again.stderr
-    for seed in (0, 1):
-        assert (tmp_path / f"deck1-paper-ddpg-seed{seed}" / "actor.npz").exists()
+    return proc.returncode, out, err
+
+
+def _logged(*runs: Path) -> Callable[[int], bool]:
+    """Whether every run has logged its first 1,000 steps (a row of ``progress.csv``)."""
+    return lambda pid: all((r / "progress.csv").exists() and len((r / "progress.csv").read_text().splitlines()) > 1
+                           for r in runs)
 
 
 def _children(pid: int, marker: str) -> list[int]:
@@ -169,24 +136,49 @@ def _children(pid: int, marker: str) -> list[int]:
 
 
 @pytest.mark.slow
+def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(tmp_path):
+    """Started with SIGINT ignored, as a script's background job is, Ctrl-C to the group still stops the command,
+    not only its runs (reward-ddpg steps its 8 environments in a worker process, which Ctrl-C reaches too); an
+    impatient second Ctrl-C while it waits changes nothing and prints no traceback."""
+    args = ["--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "2400", "--eval-every", "1200",
+            "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
+    runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
+    code, out, err = _ctrl_c(args, _logged(*runs), "the runs logged no 1,000 steps", signal.SIG_IGN, twice=True)
+    assert code == 130 and "Traceback" not in err, err
+    assert "interrupted: waiting for the running runs to stop at their checkpoints" in out
+    for run in runs:
+        assert f"stopped {run.name} after" in out and "unfinished (run again to resume)" in out
+        assert (run / "checkpoint.pt").exists() and not (run / "actor.npz").exists()
+    again = _learning(*args)
+    assert again.returncode == 0, again.stderr
+    for run in runs:
+        assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
+        assert (run / "actor.npz").exists()
+        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("2400,")
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_runs_start_stops_them_without_a_failure(tmp_path):
+    """The runs' interpreters are still importing when Ctrl-C reaches the group: each takes it once it can (it
+    starts with SIGINT blocked), ends as a stopped run, and the same command then trains both."""
+    args = ["--arms", "paper-ddpg", "--seeds", "0,1", "--steps", "300", "--eval-every", "150", "--eval-episodes", "1",
+            "--out", str(tmp_path), "--jobs", "2"]
+    code, out, err = _ctrl_c(args, lambda pid: len(_children(pid, "spawn_main")) >= 2,
+                             "the runs' processes did not start")
+    assert code == 130 and "Traceback" not in err and "FAILED" not in out, out + err
+    assert out.count("unfinished (run again to resume)") == 2
+    again = _learning(*args)
+    assert again.returncode == 0, again.stderr
+    for seed in (0, 1):
+        assert (tmp_path / f"deck1-paper-ddpg-seed{seed}" / "actor.npz").exists()
+
+
+@pytest.mark.slow
 def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(tmp_path):
-    args = [sys.executable, "benchmarks/learning.py", "--arms", "paper-ddpg,paper-mddpg", "--steps", "3000",
-            "--eval-every", "1500", "--eval-episodes", "1", "--out", str(tmp_path)]
-    env = {**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+    args = ["--arms", "paper-ddpg,paper-mddpg", "--steps", "3000", "--eval-every", "1500", "--eval-episodes", "1",
+            "--out", str(tmp_path)]
     first = tmp_path / "deck1-paper-ddpg-seed0"
-    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
-        deadline = time.monotonic() + 300
-        while not ((first / "progress.csv").exists() and len((first / "progress.csv").read_text().splitlines()) > 1):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the first run logged no 1,000 steps within 300 s"
-            time.sleep(0.2)
-        os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, err
+    code, out, err = _ctrl_c(args, _logged(first), "the first run logged no 1,000 steps")
+    assert code == 130, err
     assert "stopped deck1-paper-ddpg-seed0, unfinished: run the command again to resume it" in out
     assert (first / "checkpoint.pt").exists() and not (tmp_path / "deck1-paper-mddpg-seed0").exists()
