@@ -9,7 +9,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from deck_sim.geometry import Footprints
-from deck_sim.tasks.observation import TURNED_KEYS, ObservationConfig, build_observation, observation_shapes
+from deck_sim.tasks.observation import (
+    TURNED_KEYS,
+    ObservationConfig,
+    build_observation,
+    closest_approach,
+    observation_shapes,
+)
 
 BOUNDS = np.array([[-20.0, -10.0], [30.0, 10.0]])
 MOVER_HALF = np.array([[2.0, 1.0], [0.0, 0.0], [9.0, 6.0]])
@@ -70,6 +76,7 @@ def test_every_option_adds_its_keys_with_the_announced_shapes_in_order():
         near_obstacles=True,
         route_steps=2,
         agent_frame=True,
+        approach_dt=0.5,
     )
     obs = observe(cfg, route=np.array([[2.0, 3.0], [3.0, 4.0]]))
     shapes = observation_shapes(cfg, 3, 3)
@@ -163,3 +170,38 @@ def test_the_predicted_key_follows_the_horizon(horizon):
     obs = build_observation(cfg, AGENT, 0.0, np.zeros(2), AGENT, STATICS, MOVER_XY, MOVER_YAW, predicted)
     assert ("predicted" in obs) == (horizon > 0)
     assert {k: v.shape for k, v in obs.items()} == observation_shapes(cfg, 3, 3)
+
+
+def test_the_closest_approach_of_each_mover_is_read_from_its_forecast_in_the_movers_order():
+    # the agent drives east at 0.5 m/s (and south at 0.25); every mover's forecast goes 1 and 2 m east of it
+    obs = observe(config(approach_dt=0.5))
+    velocity = np.array([0.5, -0.25])
+    for row, now in enumerate(obs["dynamic_obstacles"]):  # nearest first, as ``dynamic_obstacles``
+        track = [now, now + [1.0, 0.0] - 0.5 * velocity, now + [2.0, 0.0] - 1.0 * velocity]
+        dist = [float(np.hypot(*p)) for p in track]
+        k = int(np.argmin(dist))
+        np.testing.assert_allclose(obs["predicted_approach"][row], [0.5 * k, dist[k]], rtol=1e-12)
+    # the mover 2 m east moves away: its closest approach is now; the one 8 m south comes no nearer than now either
+    assert obs["predicted_approach"][0, 0] == 0.0 and obs["predicted_approach"][0, 1] == 2.0
+    assert "predicted_approach" not in observe(config())
+
+
+@given(
+    now=st.tuples(st.floats(-40, 40), st.floats(-40, 40)),
+    speed=st.floats(0.5, 5.0),
+    steps=st.integers(1, 10),
+)
+def test_a_mover_driving_at_a_standing_agent_is_nearest_at_the_end_of_its_forecast(now, speed, steps):
+    now = np.array(now)
+    gap = float(np.hypot(*now))
+    if gap < speed * 0.5 * steps + 1.0:  # (it must not reach the agent within the forecast)
+        return
+    towards = -now / gap
+    forecast = now + np.arange(1, steps + 1)[:, None] * 0.5 * speed * towards
+    t, d = closest_approach(now[None], forecast[None], np.zeros(2), 0.5)[0]
+    assert t == pytest.approx(0.5 * steps) and d == pytest.approx(gap - 0.5 * speed * steps)
+    # standing still in its forecast, it is nearest now; and the agent's own motion counts as the mover's would
+    t0, d0 = closest_approach(now[None], np.repeat(now[None, None], steps, 1), np.zeros(2), 0.5)[0]
+    assert t0 == 0.0 and d0 == pytest.approx(gap)
+    t2, d2 = closest_approach(now[None], np.repeat(now[None, None], steps, 1), -speed * towards, 0.5)[0]
+    assert t2 == pytest.approx(t) and d2 == pytest.approx(d)

@@ -134,3 +134,26 @@ def test_the_lookahead_reward_is_the_same_whatever_the_agent_observes_and_reads_
     paper, seen_paper = run("mpc", 0)
     assert seen_paper == seen  # the same episode: the reward changes nothing the agent does here
     assert looked != paper and sum(looked) < sum(paper)  # encounters ahead are penalised before they come
+
+
+def test_the_closest_approach_key_is_read_from_the_forecast_the_agent_observes_in_either_frame() -> None:
+    """``episode.predicted_approach``: each mover's closest approach on the MPC forecast the observation holds, the
+    same in the world's axes and the agent's; refused without a predictor."""
+    from deck_sim.scenes import SceneSpecError
+    from deck_sim.tasks.observation import closest_approach
+
+    env = deck_sim.load("deck1", seed=3, episode__predictor="mpc", episode__predicted_approach=True)
+    world = [env.reset().observation] + [env.step(np.array([0.6, 0.0])).observation for _ in range(20)]
+    for obs in world:
+        assert obs["predicted_approach"].shape == (5, 2)
+        np.testing.assert_allclose(
+            obs["predicted_approach"],
+            closest_approach(obs["dynamic_obstacles"], obs["predicted"], obs["velocity"], 0.5), rtol=1e-12,
+        )
+    assert any(obs["predicted_approach"][:, 0].max() > 0 for obs in world)  # (some mover comes nearer later)
+    ego = deck_sim.load("deck1", seed=3, episode__predictor="mpc", episode__predicted_approach=True,
+                        episode__frame="agent")
+    obs = ego.reset().observation
+    np.testing.assert_allclose(obs["predicted_approach"], world[0]["predicted_approach"], rtol=1e-9, atol=1e-9)
+    with pytest.raises(SceneSpecError, match=r"predicted_approach: is read from the forecast: it needs a predictor"):
+        deck_sim.load("deck1", seed=3, episode__predictor="none", episode__predicted_approach=True)

@@ -426,7 +426,18 @@ class TrainConfig:
             if stage.movers < 0 or stage.max_target_distance <= 0:
                 raise ConfigError(f"curriculum[{i}]: movers >= 0 and max_target_distance > 0, got {stage!r}")
             last = stage.until
+        self._check_scene()
         return self
+
+    def _check_scene(self) -> None:
+        """``ConfigError`` unless the scene, with the run's overrides and its predictor, is a valid scene (an option
+        read from the forecast, for one, needs a predictor: MDDPG)."""
+        from deck_sim.scenes import SceneSpecError, load_scene
+
+        try:
+            load_scene(self.scene, **{**self.scene_overrides, "episode__predictor": self.predictor})
+        except SceneSpecError as err:
+            raise ConfigError(f"scene_overrides: {err}") from err
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable copy."""
@@ -544,6 +555,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "per": {"per_alpha": 0.6, "per_beta": 0.4},
     "meanq": {"twin_min_weight": 0.5},
     "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
+    "approach": {"scene_overrides": {"episode__predicted_approach": True}},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -566,7 +578,8 @@ the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; `
 alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
 than their minimum, ``twin_min_weight = 0.5``; ``lookahead``: the reward's repulsion term reads each mover's
 closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
-MDDPG alike). Several switches join with ``+``:
+MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
+observation, ``episode.predicted_approach``). Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 

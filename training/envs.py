@@ -26,7 +26,12 @@ log = logging.getLogger(__name__)
 
 FAR = 1000.0
 """Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
-MOVER_KEYS = ("dynamic_obstacles", "predicted", "dynamic_nearest", "dynamic_heading", "dynamic_size", "dynamic_near")
+MOVER_KEYS = (
+    "dynamic_obstacles", "predicted", "predicted_approach", "dynamic_nearest", "dynamic_heading", "dynamic_size",
+    "dynamic_near",
+)
+FORECAST_KEYS = ("predicted", "predicted_approach")
+"""Observation keys read from the forecast: what an agent without prediction does not see."""
 PAD = {"dynamic_heading": 0.0, "dynamic_size": 0.0}
 """What fills the rows of movers a curriculum stage leaves out, where not ``FAR`` (``mover_pad_fills`` adds the
 run's own)."""

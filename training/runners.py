@@ -34,7 +34,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from training.config import TrainConfig
-from training.envs import TEACHER_PREDICTOR, ObservationLayout, env_layout, make_env, mover_pad_fills
+from training.envs import (
+    FORECAST_KEYS,
+    TEACHER_PREDICTOR,
+    ObservationLayout,
+    env_layout,
+    make_env,
+    mover_pad_fills,
+)
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """An acting policy: greedy actions (n, 2) float64 for flat observations (n, obs_dim) (``DDPGAgent.acting``)."""
@@ -144,7 +151,7 @@ class EnvGroup:
             ScriptedPolicy(self.envs[i].composer_env, ScriptedPlanner(body=body), view=view) if expert else None
         )
         full = env_layout(self.envs[i])
-        own = full.without(("predicted",)) if env_predictor != predictor else full
+        own = full.without(FORECAST_KEYS) if env_predictor != predictor else full
         self.views[i] = (full, own) if own.keys != full.keys else None
         agent = None if self.view is None else self.view.layout
         self.padded[i] = None if agent is None or (own.keys, own.shapes) == (agent.keys, agent.shapes) else own

@@ -37,7 +37,10 @@ an encoder's input is [the obstacle's row of each of the set's keys, in the orde
 then the context]; the head's input is [the context; then each set's pooled features, in the order of
 ``meta["sets"]``]; the context is every key in no set, in the order of ``observation_keys``."""
 OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
-    "movers": ("dynamic_obstacles", "predicted", "dynamic_size", "dynamic_nearest", "dynamic_heading", "dynamic_near"),
+    "movers": (
+        "dynamic_obstacles", "predicted", "predicted_approach", "dynamic_size", "dynamic_nearest", "dynamic_heading",
+        "dynamic_near",
+    ),
     "statics": ("static_obstacles", "static_nearest", "static_near"),
 }
 """Observation keys whose rows are one obstacle each, by set: a set actor reads each row of a set's keys as one
@@ -223,7 +226,8 @@ class LearnedPolicy:
         """Scene fields an environment needs to give this actor its observation (``deck_sim.load`` keywords):
         the predictor, ``episode__obstacle_shape`` for an actor trained on the obstacles' shapes,
         ``episode__mover_size`` for one trained on the movers' sizes, ``episode__static_size`` for one trained on
-        the static obstacles' footprints, ``episode__near_obstacles`` for one trained
+        the static obstacles' footprints, ``episode__predicted_approach`` for one trained on its forecast's
+        closest approaches, ``episode__near_obstacles`` for one trained
         on the obstacles within its near field, the ``episode__near_steps`` and
         ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its
         training overrode (the observation's keys and shapes cannot tell those)."""
@@ -240,6 +244,8 @@ class LearnedPolicy:
             out["episode__static_size"] = True
         if "static_near" in self.keys:
             out["episode__near_obstacles"] = True
+        if "predicted_approach" in self.keys:
+            out["episode__predicted_approach"] = True
         trained = dict(self.meta.get("scene_overrides") or {})
         for field in POLICY_EPISODE_FIELDS:
             if trained.get(f"episode__{field}") is not None:

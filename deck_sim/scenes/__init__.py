@@ -249,6 +249,13 @@ class EpisodeSpec:
     """Where the observation's ``predicted`` positions are measured from: ``agent`` (the paper's eq. 8: predicted
     position minus the agent's) or ``mover`` (predicted position minus that mover's position now: its predicted
     displacement, zero for a mover that is predicted to stand)."""
+    predicted_approach: bool = False
+    """Also observe, from the forecast, each mover's closest approach: ``predicted_approach`` (n, 2), in the order
+    of ``dynamic_obstacles``, the time (seconds from now, a multiple of ``control_period`` up to the horizon) and
+    the distance between centres (metres) at which the mover's forecast track comes nearest to the agent carried on
+    at its current velocity (now included). A function of what MDDPG observes already (its forecast and its own
+    velocity), in the form in which a collision course shows. Needs a predictor (``predictor`` not ``none``). Off by
+    default (the paper's observation)."""
     mover_size: bool = False
     """Also observe each mover's size (``dynamic_size``, (n, 2), in the same order as ``dynamic_obstacles``): the
     half-length and half-width of its footprint, rounding radius included, metres (on deck 1: (9.15, 6.8) for the

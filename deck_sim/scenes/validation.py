@@ -396,6 +396,11 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         f"near_steps * agent.reach = {e.near_steps} * {a.reach} m exceeds the arena's diagonal {arena.diagonal:.1f} m",
     )
     _check(
+        not e.predicted_approach or e.predictor != "none",
+        f"{w}.predicted_approach",
+        "is read from the forecast: it needs a predictor ([episode].predictor is 'none')",
+    )
+    _check(
         not e.near_obstacles or e.near_steps > 0,
         f"{w}.near_obstacles",
         "needs a near field: set [episode].near_steps > 0",
@@ -412,6 +417,7 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
     if uses is None and r.lookahead_steps > 0 and r.lookahead_predictor == "mpc":
         uses, field = "reward.lookahead_predictor", w.replace("[episode]", "[reward]") + ".lookahead_predictor"
     if uses is not None:
+        who = "" if uses == "episode.predictor" else f"{uses} "  # (the field name leads the message already)
         from deck_sim.control.mpc_settings import MPCPredictorSettings  # a plain dataclass: no CasADi
 
         mpc = MPCPredictorSettings
@@ -423,11 +429,11 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         _check(
             m.count <= mpc.max_movers,
             field,
-            f"{uses} 'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} "
+            f"{who}'mpc' is compiled for at most {mpc.max_movers} movers, the scene has {m.count} "
             "(movers.tractors + movers.aircraft + movers.pedestrians)",
         )
         _check(
             len(m.spots) <= mpc.max_spots,
             field,
-            f"{uses} 'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
+            f"{who}'mpc' is compiled for at most {mpc.max_spots} spots, movers.spots names {len(m.spots)}",
         )

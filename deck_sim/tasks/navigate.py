@@ -205,6 +205,7 @@ class Navigate(composer.Task):
             mover_half=self._dyn_half,
             mover_radius=self._dyn_radius,
             predicted_from_agent=spec.episode.predicted_frame == "agent",
+            approach_dt=ep.control_period if spec.episode.predicted_approach else 0.0,
             obstacle_shape=spec.episode.obstacle_shape,
             mover_size=self._dyn_half + self._dyn_radius[:, None] if spec.episode.mover_size else None,
             near=spec.episode.near_steps * spec.agent.reach,  # metres of the near field; 0: not observed

@@ -5,7 +5,8 @@ Observation (all relative vectors in the world frame, metres, or in the agent's 
     ``target`` (2) target minus agent; ``static_obstacles`` (m, 2) static obstacles (on the deck the island is
     the last of m = 15 + 1) minus agent; ``dynamic_obstacles`` (n, 2) movers now minus agent; ``predicted``
     (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
-    ``episode.predicted_frame = "mover"``); ``position`` (2) the agent's own
+    ``episode.predicted_frame = "mover"``; ``predicted_approach`` (n, 2) with ``episode.predicted_approach``, each
+    mover's closest approach on its forecast, ``closest_approach``); ``position`` (2) the agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
     the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``),
     the static obstacles' footprints (``static_size``: ``static_size`` and ``static_heading``),
@@ -54,6 +55,8 @@ class ObservationConfig:
         mover_radius: (n,) rounding radius of every mover's footprint, metres.
         predicted_from_agent: ``predicted`` relative to the agent (``episode.predicted_frame = "agent"``), else
             to each mover's position now.
+        approach_dt: the control period, seconds, with which ``predicted_approach`` is computed
+            (``episode.predicted_approach``); 0 leaves it out.
         obstacle_shape: observe ``static_nearest``, ``dynamic_nearest`` and ``dynamic_heading``.
         mover_size: (n, 2) every mover's half-length and half-width, rounding radius included, metres, observed
             as ``dynamic_size``; None leaves it out.
@@ -72,6 +75,7 @@ class ObservationConfig:
     mover_half: np.ndarray
     mover_radius: np.ndarray
     predicted_from_agent: bool = True
+    approach_dt: float = 0.0
     obstacle_shape: bool = False
     mover_size: np.ndarray | None = None
     near: float = 0.0
@@ -81,12 +85,31 @@ class ObservationConfig:
     agent_frame: bool = False
 
 
+def closest_approach(now: np.ndarray, forecast: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
+    """Each mover's closest approach to the agent carried on at ``velocity``: (n, 2), the time (seconds from now)
+    and the distance between centres (metres) where it is least over now and the forecast's steps (the earliest
+    of equal ones).
+
+    Args:
+        now: (n, 2) the movers' positions now minus the agent's, metres.
+        forecast: (n, N, 2) their forecast positions minus the agent's position now, one every ``dt`` seconds.
+        velocity: (2,) the agent's velocity, m/s.
+    """
+    steps = np.arange(forecast.shape[1] + 1) * dt
+    track = np.concatenate([now[:, None], forecast], axis=1) - steps[:, None] * velocity  # (n, N + 1, 2)
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", track, track))
+    first = dist.argmin(axis=1)
+    return np.stack([steps[first], dist[np.arange(len(dist)), first]], axis=1)
+
+
 def observation_shapes(config: ObservationConfig, n_static: int, n_movers: int) -> dict[str, tuple[int, ...]]:
     """Shape of every observation key for ``n_static`` static obstacles and ``n_movers`` movers, in order."""
     m, n = n_static, n_movers
     shapes = {"target": (2,), "static_obstacles": (m, 2), "dynamic_obstacles": (n, 2)}
     if config.horizon > 0:
         shapes["predicted"] = (n, config.horizon, 2)
+        if config.approach_dt > 0:
+            shapes["predicted_approach"] = (n, 2)
     if config.obstacle_shape:
         shapes.update({"static_nearest": (m, 2), "dynamic_nearest": (n, 2), "dynamic_heading": (n, 2)})
     if config.mover_size is not None:
@@ -143,6 +166,10 @@ def build_observation(
     if config.horizon > 0:
         origin = agent_xy if config.predicted_from_agent else mover_xy[order_m][:, None]
         obs["predicted"] = predicted[order_m] - origin
+        if config.approach_dt > 0:
+            obs["predicted_approach"] = closest_approach(
+                movers[order_m], predicted[order_m] - agent_xy, agent_velocity, config.approach_dt
+            )
     near, near_obstacles = config.near, config.near_obstacles
     static_nearest = dynamic_nearest = None
     if config.obstacle_shape or (near > 0 and near_obstacles):
