@@ -89,6 +89,8 @@ def main() -> None:
         seeds = [int(s) for s in args.seeds.split(",")]
     except (ConfigError, ValueError) as err:
         raise SystemExit(str(err)) from err
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
     wanted = args.variants.split(",") if args.variants else None
     unknown = sorted(set(wanted or ()) - {v for a in algos for v in VARIANTS[a]})
     if unknown:

@@ -4,7 +4,7 @@ Each policy of ``--policies`` (a shipped policy such as ``mddpg-reward``, a refe
 an actor file) plays the first ``--episodes`` held-out episodes of ``--scene`` (those of ``docs/results.md``:
 episode i reset from seed ``DEFAULT_SEED + i``, as ``deck_sim.evaluation`` seeds them), and every episode that ends
 in a collision is classified by what the aircraft hit (``last_info["collision"]``), as it was over the control step
-before the one in which they touched (``classify``):
+before the one in which they touched (that step itself for a contact in the first) (``classify``):
 
 - ``static``: anything that is not a mover (a parked aircraft, a prop, the island);
 - ``standing``: a mover that moved less than ``--standing`` m/s: its forecast is where it stands, which the current
@@ -71,6 +71,8 @@ def classify(mover_before: np.ndarray | None, mover_after: np.ndarray | None, ag
 def collisions(policy_name: str, scene: str, episodes: int, standing: float) -> dict[str, Any]:
     """Play ``episodes`` held-out episodes of ``scene`` with ``policy_name`` and classify every collision."""
     env = deck_sim.load(scene, seed=0, **agent_overrides(policy_name, scene))
+    if env.task.spec.multi_agent:
+        raise ValueError(f"{scene} has several aircraft; this script reads one aircraft's collisions")
     policy = make_agent(policy_name, env)
     task, dt = env.task, env.task.spec.episode.control_period
     names = [m.mjcf_model.model for m in task.movers]
@@ -83,15 +85,19 @@ def collisions(policy_name: str, scene: str, episodes: int, standing: float) -> 
             info = env.task.last_info
             trace.append((info["mover_positions"].copy(), info["position"].copy(), float(info["heading"])))
 
-        env.random_state.seed(episode_seed(DEFAULT_SEED, i))
+        seed = episode_seed(DEFAULT_SEED, i)
+        if policy_name == "random":  # (its own stream, seeded per episode, as the harness seeds it)
+            policy = make_agent(policy_name, env, seed=seed)
+        env.random_state.seed(seed)
         run_episode(env, policy, episode=i, on_step=on_step)
         partner = task.last_info["collision"]
         if partner is None:
             continue
         partners[re.sub(r"_\d+$", "", partner)] += 1
         j = names.index(partner) if partner in names else None
-        # the step before the one in which they touched: from frame -3 to frame -2 (the last frame is after it)
-        a, b = trace[max(len(trace) - 3, 0)], trace[max(len(trace) - 2, 0)]
+        # the step before the one in which they touched: from frame -3 to frame -2 (the last frame is after it);
+        # for a contact in the episode's first step, that step itself
+        a, b = (trace[-3], trace[-2]) if len(trace) >= 3 else (trace[0], trace[-1])
         kind, coming, where = classify(None if j is None else a[0][j], None if j is None else b[0][j], b[1], b[2],
                                        dt, standing)
         counts["collisions"] += 1
@@ -99,6 +105,7 @@ def collisions(policy_name: str, scene: str, episodes: int, standing: float) -> 
         counts["coming"] += coming
         if where:
             counts[where] += 1
+    env.close()
     meta = getattr(policy, "meta", None)
     return {"policy": agent_label(policy_name), "regime": (actor_regime(meta) if meta else None) or "-",
             "episodes": episodes, "counts": counts, "partners": partners}

@@ -207,10 +207,11 @@ def starting(arm: str, seed: int, run: Path, resume: bool) -> str:
     return f"training {arm} seed {seed} -> {run}" + (" (resuming)" if resume else "")
 
 
-def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> None:
+def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> bool:
     """Train (or resume from its checkpoint) one run in ``run``: a ``TrainConfig`` with ``training.loop.Trainer``,
     a dict with ``training.baselines.train_baseline`` (DQN, A2C). With ``log``, this process's standard output and
-    error (the progress report) are appended to that file, as in each process of ``--jobs``."""
+    error (the progress report) are appended to that file, as in each process of ``--jobs``. Returns whether
+    Ctrl-C stopped it (even at its last step, with its actor written)."""
     if log is not None:
         stream = open(log, "a", buffering=1)  # noqa: SIM115 (held for the process's life)
         os.dup2(stream.fileno(), 1)
@@ -223,9 +224,8 @@ def train_one(cfg: object, run: Path, resume: bool, log: Path | None = None) -> 
         if isinstance(cfg, dict):  # DQN, A2C: stable-baselines3
             from training.baselines import train_baseline
 
-            train_baseline(**cfg, out=run, resume=resume)
-        else:
-            Trainer(cfg, run, resume=resume).train()
+            return bool(train_baseline(**cfg, out=run, resume=resume)["stopped"])
+        return bool(Trainer(cfg, run, resume=resume).train()["stopped"])
     except (ConfigError, CheckpointError) as err:
         raise TrainingError(f"{run}: {err}") from err
 
@@ -259,11 +259,14 @@ def train_runs(to_train: list[tuple[str, int, Path, object, bool]], jobs: int) -
     for arm, seed, run, cfg, resume in to_train:
         print(starting(arm, seed, run, resume), flush=True)
         try:
-            train_one(cfg, run, resume)
+            stopped = train_one(cfg, run, resume)
         except TrainingError as err:
             raise SystemExit(str(err)) from err
-        if not (run / "actor.npz").exists():
-            print(f"stopped {run.name}, unfinished: run the command again to resume it", flush=True)
+        except KeyboardInterrupt:  # (outside the trainer's loop: its demonstrations, its final fit)
+            stopped = True
+        if stopped or not (run / "actor.npz").exists():
+            print(f"stopped {run.name}" + ("" if (run / "actor.npz").exists() else ", unfinished") + ": run the "
+                  "command again to resume it", flush=True)
             raise SystemExit(130)
 
 

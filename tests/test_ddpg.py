@@ -250,6 +250,11 @@ def test_observation_layout_selects_and_pads():
     small_s = ObservationLayout({"dynamic_size": (1, 2), "predicted": (1, 1, 2)})
     out = small_s.pad_to(np.ones(small_s.dim, dtype=np.float32), full_s, {"predicted": 0.0})
     assert out.tolist() == [1, 1] + [0] * 4 + [1, 1] + [0] * 4
+    # a left-out mover's closest approach: now, as far away as its FAR position
+    full_a = ObservationLayout({"predicted_approach": (3, 2)})
+    small_a = ObservationLayout({"predicted_approach": (1, 2)})
+    out = small_a.pad_to(np.ones(small_a.dim, dtype=np.float32), full_a)
+    np.testing.assert_allclose(out, [1, 1] + [0, FAR * np.sqrt(2)] * 2, rtol=1e-6)
 
 
 def test_left_out_movers_read_as_beyond_the_near_field():

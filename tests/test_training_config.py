@@ -22,6 +22,21 @@ def test_config_errors_name_the_field():
     assert train_episode_seed(0, 0, 0) >= 1_000_000  # training episodes never use the evaluation seeds
 
 
+def test_scene_overrides_are_checked_with_the_algorithms_predictor():
+    from training.config import arm_config
+
+    assert arm_config("reward-mddpg-with-approach", "deck1", 1000, 0).scene_overrides == {
+        "episode__predicted_approach": True
+    }
+    with pytest.raises(ConfigError, match=r"scene_overrides .*predicted_approach: is read from the forecast: it "
+                                          r"needs a predictor"):
+        arm_config("reward-ddpg-with-approach", "deck1", 1000, 0)  # (DDPG observes no forecast)
+    with pytest.raises(ConfigError, match=r"scene_overrides: episode__predictor is the algorithm's \(ddpg: none\)"):
+        make_config("reward", algo="ddpg", scene_overrides={"episode__predictor": "mpc"})
+    with pytest.raises(ConfigError, match=r"scene 'deck1' with scene_overrides .*horizon"):
+        make_config("reward", algo="mddpg", scene_overrides={"episode__horizon": 0})
+
+
 def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():
     from training.config import arm_config, bc_weight_at
 

@@ -430,14 +430,19 @@ class TrainConfig:
         return self
 
     def _check_scene(self) -> None:
-        """``ConfigError`` unless the scene, with the run's overrides and its predictor, is a valid scene (an option
-        read from the forecast, for one, needs a predictor: MDDPG)."""
+        """``ConfigError`` unless the scene with the run's overrides is a valid scene, both as given and with the
+        run's predictor (an option read from the forecast, for one, needs a predictor: MDDPG); the predictor
+        itself is the algorithm's, not an override."""
         from deck_sim.scenes import SceneSpecError, load_scene
 
+        if "episode__predictor" in self.scene_overrides:
+            raise ConfigError(f"scene_overrides: episode__predictor is the algorithm's ({self.algo}: {self.predictor})"
+                              "; leave it out")
         try:
+            load_scene(self.scene, **self.scene_overrides)
             load_scene(self.scene, **{**self.scene_overrides, "episode__predictor": self.predictor})
         except SceneSpecError as err:
-            raise ConfigError(f"scene_overrides: {err}") from err
+            raise ConfigError(f"scene {self.scene!r} with scene_overrides {self.scene_overrides}: {err}") from err
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable copy."""

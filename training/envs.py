@@ -32,9 +32,11 @@ MOVER_KEYS = (
 )
 FORECAST_KEYS = ("predicted", "predicted_approach")
 """Observation keys read from the forecast: what an agent without prediction does not see."""
-PAD = {"dynamic_heading": 0.0, "dynamic_size": 0.0}
+PAD: dict[str, float | tuple[float, ...]] = {
+    "dynamic_heading": 0.0, "dynamic_size": 0.0, "predicted_approach": (0.0, FAR * math.sqrt(2.0)),
+}
 """What fills the rows of movers a curriculum stage leaves out, where not ``FAR`` (``mover_pad_fills`` adds the
-run's own)."""
+run's own); a tuple fills each column (``predicted_approach``: closest now, as far as a ``FAR`` row)."""
 
 
 def mover_pad_fills(config: TrainConfig) -> dict[str, float]:
