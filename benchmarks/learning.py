@@ -265,8 +265,8 @@ def train_runs(to_train: list[tuple[str, int, Path, object, bool]], jobs: int) -
         except KeyboardInterrupt:  # (outside the trainer's loop: its demonstrations, its final fit)
             stopped = True
         if stopped or not (run / "actor.npz").exists():
-            print(f"stopped {run.name}" + ("" if (run / "actor.npz").exists() else ", unfinished") + ": run the "
-                  "command again to resume it", flush=True)
+            print(f"stopped after {run.name} finished: run the command again to go on" if (run / "actor.npz").exists()
+                  else f"stopped {run.name}, unfinished: run the command again to resume it", flush=True)
             raise SystemExit(130)
 
 
