@@ -355,6 +355,24 @@ def test_a_chunk_declaring_a_huge_size_is_damage_not_a_memory_error(small_log, t
             assert ep.rescore().result == live[ep.index]
 
 
+def test_a_chunk_whose_data_length_claims_petabytes_is_damage_not_a_memory_error(small_log, tmp_path):
+    """The mcap package reads a chunk's data length and then that many bytes: one flipped bit there must read as a
+    file cut short, not ask the allocator for 2^48 bytes."""
+    path, _ = small_log
+    data = bytearray(path.read_bytes())
+    at = 8
+    while data[at] != 0x06:  # the first chunk record: opcode (1 byte), length (8), content
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    # its content: start and end times, uncompressed size (8 bytes each), CRC (4), compression (4 + its bytes),
+    # then the data length (8)
+    text = struct.unpack_from("<I", data, at + 9 + 28)[0]
+    struct.pack_into("<Q", data, at + 9 + 32 + text, 1 << 48)
+    bad = tmp_path / "petabytes.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(LogError, match=str(bad)):
+        EpisodeLog(bad)
+
+
 @settings(max_examples=60, deadline=None)
 @given(damage=_DAMAGE, summary_only=st.booleans())
 def test_generated_damage_to_a_log_is_only_a_log_error_or_a_faithful_partial_read(small_log, damage, summary_only):

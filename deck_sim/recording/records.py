@@ -82,6 +82,22 @@ def _unchunked(records: Iterator[Any]) -> Iterator[Any]:
         yield from breakup_chunk(record, validate_crc=True)
 
 
+class _FileBounded:
+    """A binary file whose ``read(n)`` never asks for more than the file holds: the mcap package reads a length
+    field and then that many bytes, which a damaged field can make petabytes (a ``MemoryError`` before any
+    check); cut to what is left, the read comes back short and the reader reports the file as cut there."""
+
+    def __init__(self, stream: Any, size: int) -> None:
+        self._stream, self._size = stream, size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self._stream.tell(), 0)
+        return self._stream.read(left if n is None or n < 0 or n > left else n)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def read_records(path: Path, allow_truncated: bool) -> RawLog:
     """Every complete record of the file's data section; a damaged data section is an error unless
     ``allow_truncated``. The summary section only indexes the data: its records are not read into the log, and
@@ -103,7 +119,8 @@ def read_records(path: Path, allow_truncated: bool) -> RawLog:
         if stream.read(8) != b"\x89MCAP0\r\n":
             raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
         stream.seek(0)
-        reader = StreamReader(stream, validate_crcs=True, record_size_limit=RECORD_LIMIT, emit_chunks=True)
+        reader = StreamReader(_FileBounded(stream, size), validate_crcs=True, record_size_limit=RECORD_LIMIT,
+                              emit_chunks=True)
         try:
             for record in _unchunked(reader.records):
                 if isinstance(record, DataEnd | Footer):
