@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deck_sim.tasks.observation import closest_approach
+
 
 def shaped(change: float, lo: float, hi: float, deadband: float) -> float:
     """The paper's clipped shaping: sign of ``change``, magnitude clipped to [lo, hi]; 0 inside the dead band."""
@@ -76,10 +78,9 @@ def lookahead_clearances(
         mover_xy: (n, 2) the movers' positions now, metres.
         forecast: (n, K, 2) the movers' forecast positions, one every ``dt`` seconds from now, metres.
     """
-    ahead = agent_xy + np.arange(1, forecast.shape[1] + 1)[:, None] * dt * agent_velocity  # (K, 2)
-    now = np.linalg.norm(mover_xy - agent_xy, axis=-1)
-    closest = np.linalg.norm(forecast - ahead[None], axis=-1).min(axis=-1, initial=np.inf)
-    return clearances + np.minimum(closest - now, 0.0)
+    now = mover_xy - agent_xy
+    nearest = closest_approach(now, forecast - agent_xy, agent_velocity, dt)[:, 1]  # (now included: never more)
+    return clearances + (nearest - np.sqrt(np.einsum("ij,ij->i", now, now)))
 
 
 @dataclass(frozen=True)
