@@ -300,6 +300,7 @@ def save_checkpoint(trainer: Trainer) -> Path:
         "agent": trainer.agent.state_dict(),
         "buffer": trainer.buffer.state_dict(),
         "noise": trainer.noise.state_dict(),
+        "hold": trainer.hold.state_dict(),
         "rng": trainer.rng.bit_generator.state,
         "torch_rng": torch.get_rng_state(),
         "slots": trainer.slot_states(),
@@ -338,6 +339,8 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
     trainer.rng.bit_generator.state = state["rng"]
     trainer.restore_slots(state["slots"])
     trainer.noise.load_state_dict(state["noise"])  # start_episode reset it
+    if "hold" in state:  # absent from a checkpoint written before held actions existed (none were held)
+        trainer.hold.load_state_dict(state["hold"])
     torch.set_rng_state(state["torch_rng"])
     if trainer.runlog.open_csv(truncate_after=trainer.step):
         trainer.last_eval_step = trainer.step  # the run's evaluation at this step is on file already

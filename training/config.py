@@ -25,6 +25,7 @@ from typing import Any
 from deck_sim import agents
 from deck_sim.evaluation import TRAIN_SEED_BASE
 from deck_sim.policies.regimes import TEACHING_FIELDS, config_regime
+from training.noise import HOLD_ACTIONS
 
 ALGOS = tuple(a for a in agents.ALGOS if agents.AGENTS[a].trainer == "ddpg")
 """The training algorithms of ``training.ddpg`` (``mddpg``, ``ddpg``); the others go through
@@ -194,6 +195,13 @@ class TrainConfig:
     """Fraction of ``total_steps`` over which the noise decays to ``noise_sigma_final``."""
     ou_theta: float = 0.15
     """Mean-reversion rate of the OU noise per step."""
+    hold_prob: float = 0.0
+    """Probability per step that an environment starts holding one action for several steps in place of the
+    actor's (``training.noise.HeldActions``; 0: never)."""
+    hold_steps: int = 8
+    """Longest hold, in steps (each hold lasts a uniform whole number of steps in [1, hold_steps])."""
+    hold_action: str = "stop"
+    """The held action: ``stop`` (no displacement: brake and wait) or ``random`` (one uniform random action)."""
 
     # -- the switches measured against plain DDPG ------------------------------------------------------------
     obs_norm: bool = False
@@ -357,6 +365,12 @@ class TrainConfig:
             raise ConfigError(f"algo: expected one of {', '.join(ALGOS)}, got {self.algo!r}")
         if self.noise not in NOISES:
             raise ConfigError(f"noise: expected one of {', '.join(NOISES)}, got {self.noise!r}")
+        if not 0.0 <= self.hold_prob <= 1.0:
+            raise ConfigError(f"hold_prob: must lie in [0, 1], got {self.hold_prob!r}")
+        if isinstance(self.hold_steps, bool) or not isinstance(self.hold_steps, int) or self.hold_steps < 1:
+            raise ConfigError(f"hold_steps: must be an integer >= 1, got {self.hold_steps!r}")
+        if self.hold_action not in HOLD_ACTIONS:
+            raise ConfigError(f"hold_action: expected one of {', '.join(HOLD_ACTIONS)}, got {self.hold_action!r}")
         if not 0 <= self.seed < 4_000:
             raise ConfigError(f"seed: must lie in [0, 4000) (episode seeds must fit in 32 bits), got {self.seed!r}")
         if self.num_envs > 9:
@@ -561,6 +575,9 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "meanq": {"twin_min_weight": 0.5},
     "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
+    "wait": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "stop"},
+    "ez": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "random"},
+    "ou": {"noise": "ou", "noise_sigma": 0.2, "noise_sigma_final": 0.1},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -584,7 +601,11 @@ alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean
 than their minimum, ``twin_min_weight = 0.5``; ``lookahead``: the reward's repulsion term reads each mover's
 closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
-observation, ``episode.predicted_approach``). Several switches join with ``+``:
+observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10
+steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
+"stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
+``ou``: Ornstein-Uhlenbeck noise, sigma 0.2 falling to 0.1, temporally correlated, for the Gaussian 0.1 to 0.05).
+Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
 

@@ -68,7 +68,7 @@ from training.envs import (
 )
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
 from training.her import ROUTE_REFUSAL, GoalGeometry, GoalLayoutError, HindsightSampler
-from training.noise import make_noise
+from training.noise import HeldActions, make_noise
 from training.runlog import EVAL_FIELDS, PROGRESS_FIELDS, EpisodeStats, RunLog, eval_row, progress_row
 from training.runners import AgentView, EnvSpec, StepOrder, make_runner
 
@@ -173,6 +173,7 @@ class Trainer:
         self.hindsight = self._hindsight_sampler() if tracking else None
         """Hindsight targets and n-step returns for the learner's batches (``training.her``), or None."""
         self.noise = make_noise(cfg.noise, self._noise_rows(), 2, cfg.noise_sigma, cfg.ou_theta)
+        self.hold = HeldActions(self._noise_rows(), 2, cfg.hold_prob, cfg.hold_steps, cfg.hold_action)
         self.runlog = RunLog(self.run_dir)
         self.stats = EpisodeStats()
         self.step = 0
@@ -260,6 +261,7 @@ class Trainer:
         slot.obs = obs
         slot.actions, slot.ret, slot.length = [], 0.0, 0
         self.noise.reset(slot.index)
+        self.hold.reset(slot.index)
 
     # -- the loop -----------------------------------------------------------------------------------------------
     def train(self, stop_at: int | None = None) -> dict[str, Any]:
@@ -461,7 +463,8 @@ class Trainer:
         elif self.step < cfg.learning_starts and not self.buffer.n_demo:
             order = StepOrder(actions=self.rng.uniform(-1.0, 1.0, (cfg.num_envs, 2)))
         else:
-            order = StepOrder(noise=self.noise.sample(self.rng), policy=self.agent.acting())
+            noise = self.noise.sample(self.rng)
+            order = StepOrder(noise=noise, policy=self.agent.acting(), hold=self.hold.sample(self.rng))
         stage = self._stage_index()
         spec = None if all(s.stage == stage for s in self.slots) else self.env_spec(stage)
         order.seeds = [self._next_seed(s) for s in self.slots]

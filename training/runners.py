@@ -65,8 +65,9 @@ class StepOrder:
     """One step of a run's environments as the learner asks for it (rows in slot order).
 
     ``actions`` (n, 2) are taken as they are; without them each group acts with ``policy`` plus ``noise`` (n, 2),
-    or greedily where ``noise`` is None. ``seeds`` give each environment's next reset seed (None: no reset inside
-    the step), ``builds`` the spec to rebuild it with before that reset (None: as it is).
+    or greedily where ``noise`` is None, except in the rows where ``hold`` (n, 2) is finite: those take the held
+    action as it is (``training.noise.HeldActions``). ``seeds`` give each environment's next reset seed (None: no
+    reset inside the step), ``builds`` the spec to rebuild it with before that reset (None: as it is).
     """
 
     actions: np.ndarray | None = None
@@ -74,6 +75,7 @@ class StepOrder:
     policy: Policy | None = None
     seeds: Sequence[int | None] | None = None
     builds: Sequence[EnvSpec | None] | None = None
+    hold: np.ndarray | None = None
 
     def rows(self, start: int, stop: int) -> StepOrder:
         """The order of slots ``start`` to ``stop`` (the policy left out: runners send it on its own)."""
@@ -81,7 +83,7 @@ class StepOrder:
         def cut(v: Any) -> Any:
             return None if v is None else v[start:stop]
 
-        return StepOrder(cut(self.actions), cut(self.noise), None, cut(self.seeds), cut(self.builds))
+        return StepOrder(cut(self.actions), cut(self.noise), None, cut(self.seeds), cut(self.builds), cut(self.hold))
 
 
 @dataclass
@@ -196,6 +198,9 @@ class EnvGroup:
                 raise RuntimeError("an order to act without a policy")
             actions = self.policy(np.stack(self.obs))
             actions = np.clip(actions if order.noise is None else actions + order.noise, -1.0, 1.0)
+            if order.hold is not None:
+                held = np.isfinite(order.hold[:, 0])
+                actions[held] = order.hold[held]
         results = [self.step_one(i, a) for i, a in enumerate(actions)]
         for i, res in enumerate(results):
             seed = None if order.seeds is None else order.seeds[i]

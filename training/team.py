@@ -150,6 +150,8 @@ def _refused(config: TrainConfig) -> list[str]:
         bad.append("hindsight targets (her_ratio)")
     if config.n_step > 1:
         bad.append("n-step returns (n_step)")
+    if config.hold_prob > 0.0:
+        bad.append("held actions (hold_prob)")
     return bad
 
 
