@@ -577,7 +577,6 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
     "wait": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "stop"},
     "ez": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "random"},
-    "ou": {"noise": "ou", "noise_sigma": 0.2, "noise_sigma_final": 0.1},
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -603,8 +602,7 @@ closest approach over the next 6 steps of the MPC forecast, scene field ``reward
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
 observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
-"stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
-``ou``: Ornstein-Uhlenbeck noise, sigma 0.2 falling to 0.1, temporally correlated, for the Gaussian 0.1 to 0.05).
+"stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy)).
 Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
