@@ -323,6 +323,8 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
         trainer.agent.load_state_dict(state["agent"])
         trainer.buffer.load_state_dict(state["buffer"])
         trainer.noise.load_state_dict(state["noise"])
+        if "hold" in state:  # absent from a checkpoint written before held actions existed (none were held)
+            trainer.hold.load_state_dict(state["hold"])
     except (ValueError, KeyError) as err:
         raise CheckpointError(f"{path}: {err}") from err
     trainer.step = int(state["step"])
@@ -338,8 +340,8 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
     trainer.demo_summary = dict(state["demo_summary"])
     trainer.rng.bit_generator.state = state["rng"]
     trainer.restore_slots(state["slots"])
-    trainer.noise.load_state_dict(state["noise"])  # start_episode reset it
-    if "hold" in state:  # absent from a checkpoint written before held actions existed (none were held)
+    trainer.noise.load_state_dict(state["noise"])  # start_episode reset it, and the hold with it
+    if "hold" in state:
         trainer.hold.load_state_dict(state["hold"])
     torch.set_rng_state(state["torch_rng"])
     if trainer.runlog.open_csv(truncate_after=trainer.step):

@@ -80,8 +80,9 @@ class HeldActions:
     uniform whole number of steps in [1, ``max_steps``] and replaces the action by ``(0, 0)`` (``stop``: wait,
     which Gaussian noise around a rushing actor almost never does) or by one uniform random action (``random``,
     the epsilon-z-greedy exploration of Dabney, Ostrovski and Barreto 2021 with a uniform duration). Outside a
-    hold the actor acts with its noise as usual. The held actions are stored as taken, so the learner, being off
-    policy, learns their values like any other action's.
+    hold the actor acts with its noise as usual (the noise is drawn during a hold too, and OU noise goes on
+    evolving). ``prob`` stays the same over the run. The held actions are stored as taken, so the learner, being
+    off policy, learns their values like any other action's.
     """
 
     def __init__(self, n_envs: int, act_dim: int, prob: float, max_steps: int, action: str = "stop") -> None:

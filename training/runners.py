@@ -9,7 +9,8 @@ two the learner updates its networks.
 The rollout protocol, one synchronous step of every environment per collect:
 
 1. The learner sends each group its rows of the order: explicit actions (the random phase), or the acting policy
-   (the normaliser and the actor as they stand) with the exploration noise drawn by the learner (none: greedy),
+   (the normaliser and the actor as they stand) with the exploration noise drawn by the learner (none: greedy)
+   and the actions held in place of the policy's where the exploration holds one (``training.noise.HeldActions``),
    and per environment the reset seed of its next episode and, where the curriculum's stage changed, the scene
    to rebuild it with.
 2. Each group acts on its environments' observations in one batched forward pass, steps them, and resets (or
@@ -66,8 +67,9 @@ class StepOrder:
 
     ``actions`` (n, 2) are taken as they are; without them each group acts with ``policy`` plus ``noise`` (n, 2),
     or greedily where ``noise`` is None, except in the rows where ``hold`` (n, 2) is finite: those take the held
-    action as it is (``training.noise.HeldActions``). ``seeds`` give each environment's next reset seed (None: no
-    reset inside the step), ``builds`` the spec to rebuild it with before that reset (None: as it is).
+    action as it is (``training.noise.HeldActions``; each row of ``hold`` is all NaN or all finite). ``seeds``
+    give each environment's next reset seed (None: no reset inside the step), ``builds`` the spec to rebuild it
+    with before that reset (None: as it is).
     """
 
     actions: np.ndarray | None = None
