@@ -11,7 +11,7 @@ machine; and writes ``--out/tuning_<recipe>.json``. The winner's fields go into 
 ``[sb3.a2c]`` table for the long runs (``python benchmarks/learning.py --recipe <recipe> --arms dqn,a2c``).
 
     python benchmarks/baseline_tuning.py [--recipe deck1-reward] [--algos dqn,a2c] [--variants recipe,lr3e-4]
-                                         [--steps 200000] [--seeds 0,1] [--eval-every 50000]
+                                         [--steps 300000] [--seeds 0,1] [--eval-every 50000]
                                          [--eval-episodes 100] [--out runs/tuning] [--jobs 2] [--no-train]
 """
 
@@ -70,7 +70,8 @@ def main() -> None:
     parser.add_argument("--recipe", default="deck1-reward", help="a reward-alone recipe with an [sb3] table")
     parser.add_argument("--algos", default="dqn,a2c")
     parser.add_argument("--variants", default=None, help="comma-separated variant names (default: all of each algo)")
-    parser.add_argument("--steps", type=int, default=200_000, help="environment steps per run")
+    parser.add_argument("--steps", type=int, default=300_000,
+                        help="environment steps per run (default: as each run of the reward preset's switches)")
     parser.add_argument("--seeds", default="0,1")
     parser.add_argument("--eval-every", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
