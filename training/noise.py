@@ -78,7 +78,7 @@ class HeldActions:
 
     Each step, an environment not already holding starts a hold with probability ``prob``; the hold lasts a
     uniform whole number of steps in [1, ``max_steps``] and replaces the action by ``(0, 0)`` (``stop``: wait,
-    which Gaussian noise around a rushing actor almost never does) or by one uniform random action (``random``,
+    an action small Gaussian noise around a fast actor's rarely comes near) or by one uniform random action (``random``,
     the epsilon-z-greedy exploration of Dabney, Ostrovski and Barreto 2021 with a uniform duration). Outside a
     hold the actor acts with its noise as usual (the noise is drawn during a hold too, and OU noise goes on
     evolving). ``prob`` stays the same over the run. The held actions are stored as taken, so the learner, being
