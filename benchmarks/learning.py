@@ -27,7 +27,10 @@ turning angle: the figures the regimes and the paper's tables are compared by.
 Beside each arm's mean over seeds, each table gives the 95 % interval of its success over seeds (Student's t, clipped
 to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
 for each neighbour pair of the paper's ranking MDDPG > DDPG > DQN > A2C in recipe mode, it prints the difference of
-their success, paired by seed, with its 95 % interval over the seeds both have.
+their success, paired by seed, with its 95 % interval over the seeds both have; on the held-out episodes also the
+interval of a two-level bootstrap over seeds and episodes, each episode paired with the same episode of the other
+arm (``deck_sim.metrics.paired_bootstrap_interval``), which carries the episodes' sampling noise that the interval
+over a few seeds' means can miss.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ import torch  # noqa: E402
 from common import machine  # noqa: E402
 
 from deck_sim.evaluation import DEFAULT_SEED  # noqa: E402
-from deck_sim.metrics import mean_interval  # noqa: E402
+from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
 from training.config import ConfigError, arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
@@ -367,7 +370,8 @@ def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.N
 
 def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
     """For each pair of ``ablation_pairs``, the difference of success paired by seed, with its 95 % interval over
-    the seeds both arms have (``summary[arm]``: ``seeds`` and ``success_each``)."""
+    the seeds both arms have (``summary[arm]``: ``seeds`` and ``success_each``); with ``goal_each`` (each seed's
+    per-episode successes on the same episodes) also the paired two-level bootstrap interval."""
     for with_prediction, without in ablation_pairs(arms):
         if with_prediction not in summary or without not in summary:
             continue  # (an arm with no evaluation yet)
@@ -379,6 +383,12 @@ def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
         m, lo, hi = mean_interval(diff)
         spread = (f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points"
                   if len(both) > 1 else "one seed")
+        if "goal_each" in a and "goal_each" in b:
+            _, blo, bhi = paired_bootstrap_interval(
+                np.array([a["goal_each"][a["seeds"].index(s)] for s in both]),
+                np.array([b["goal_each"][b["seeds"].index(s)] for s in both]),
+            )
+            spread += f"; over seeds and episodes, paired by episode, {100 * blo:+.1f} to {100 * bhi:+.1f} points"
         print(f"{with_prediction} - {without}: success {100 * m:+.1f} points, paired over seeds "
               f"{', '.join(map(str, both))} ({spread})")
 
@@ -402,7 +412,7 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
         records, seeds = [], []
         for seed, run in runs:
             try:
-                records.append(held_out(run, episodes))
+                records.append(held_out(run, episodes, per_episode=True))
                 seeds.append(seed)
             except HeldOutError as err:
                 print(f"{err}; left out", flush=True)
@@ -411,7 +421,8 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
         each = [r["success"] for r in records]
         m, lo, hi = mean_interval(each)
         row = {"seeds": seeds, "success_each": each, "success": m, "success_lo": lo, "success_hi": hi,
-               "selected_at_step": [r["selected_at_step"] for r in records]}
+               "selected_at_step": [r["selected_at_step"] for r in records],
+               "goal_each": [r["goal_each"] for r in records]}
         for k in ("collision", "timeout", "path_ratio", "turning_deg", "reward"):
             row[k] = float(np.nanmean([r[k] for r in records]))
         table[arm] = row

@@ -46,7 +46,7 @@ from deck_sim.evaluation import (  # noqa: E402
     summarize_agent,
     write_report,
 )
-from deck_sim.metrics import mean_interval  # noqa: E402
+from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
 from deck_sim.policies import TRAINED_DIR, load_actor, shipped_log_dir  # noqa: E402
 from deck_sim.policies.regimes import actor_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
@@ -157,7 +157,7 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
             run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"
             record = None
             try:
-                record = held_out(run, episodes, workers)
+                record = held_out(run, episodes, workers, per_episode=True)
             except HeldOutError:
                 run = shipped.get(seed)  # the logs shipped with the actor, if it was shipped
                 if run is not None and (run / held_out_file(episodes)).exists():
@@ -238,8 +238,10 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
 
 def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
     """MDDPG against DDPG (the prediction ablation) and each neighbour of the paper's ranking: the difference of
-    held-out success paired by seed, with its 95 % interval over seeds; and which of MDDPG and DDPG turns more and
-    drives further, against the paper's direction."""
+    held-out success paired by seed, with its 95 % interval over seeds and, where the records keep each episode's
+    success, the two-level bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
+    "behind" only when every interval given excludes zero; and which of MDDPG and DDPG turns more and drives
+    further, against the paper's direction."""
     out = []
     ranked = [a for a in REWARD_ALGOS if a in algos]
     for a, b in zip(ranked, ranked[1:], strict=False):
@@ -249,11 +251,17 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
             continue
         diff = [ra[s]["success"] - rb[s]["success"] for s in both]
         m, lo, hi = mean_interval(diff)
+        intervals = [(lo, hi, "over seeds")] if len(both) > 1 else []
+        if all("goal_each" in r[s] for r in (ra, rb) for s in both):
+            _, blo, bhi = paired_bootstrap_interval(np.array([ra[s]["goal_each"] for s in both]),
+                                                    np.array([rb[s]["goal_each"] for s in both]))
+            intervals.append((blo, bhi, "over seeds and episodes, paired by episode"))
         if len(both) > 1:
-            verdict = ("ahead" if lo > 0 else "behind" if hi < 0 else "not separated") + \
-                f" (95 % interval {100 * lo:+.1f} to {100 * hi:+.1f} points)"
+            verdict = ("ahead" if all(x[0] > 0 for x in intervals) else
+                       "behind" if all(x[1] < 0 for x in intervals) else "not separated") + " (95 % interval " + \
+                "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}" for x, y, how in intervals) + ")"
         else:
-            verdict = "one seed, no interval"
+            verdict = "one seed, no interval over seeds"
         out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}: "
                    f"{100 * m:+.1f} points, {a} {verdict}; the paper ranks {a} above {b}.")
     if "mddpg" in algos and "ddpg" in algos:

@@ -21,13 +21,21 @@ def _run(tmp_path, actor: str = "deck1_ddpg.npz"):
     return run
 
 
+def _direct(run):
+    return evaluate(EvalConfig(agents=(f"x={run / 'actor_best.npz'}",), scenes=("deck1",), episodes=2,
+                               backend="serial", record="none"))
+
+
 def test_held_out_matches_deck_sim_eval_and_is_cached_per_actor(tmp_path):
     run = _run(tmp_path)
     first = held_out(run, episodes=2, workers=1)
-    direct = evaluate(EvalConfig(agents=(f"x={run / 'actor_best.npz'}",), scenes=("deck1",), episodes=2,
-                                 backend="serial", record="none")).summary("deck1", "x")
+    res = _direct(run)
+    direct = res.summary("deck1", "x")
     assert first["success"] == direct["goal_rate"] and first["collision"] == direct["collision_rate"]
     assert first["episodes"] == 2 and first["seed"] == DEFAULT_SEED and first["scene"] == "deck1"
+    # each episode's success, in episode order, for paired comparisons
+    outcomes = [r["outcome"] for r in sorted(res.episodes, key=lambda r: r["episode"])]
+    assert first["goal_each"] == [int(o == "goal") for o in outcomes]
     assert json.loads((run / held_out_file(2)).read_text())["actor_sha256"] == first["actor_sha256"]
     # the same actor again: the cached record, not a new evaluation (same wall time to the bit)
     assert held_out(run, episodes=2, workers=1) == first
@@ -43,3 +51,14 @@ def test_a_folder_without_config_or_actor_is_refused_by_name(tmp_path):
     (run / "actor_best.npz").unlink()
     with pytest.raises(HeldOutError, match="no actor to measure yet"):
         held_out(run, episodes=1)
+
+
+def test_a_record_without_per_episode_successes_is_measured_again_only_when_they_are_asked_for(tmp_path):
+    run = _run(tmp_path)
+    first = held_out(run, episodes=2, workers=1)
+    old = {k: v for k, v in first.items() if k != "goal_each"}  # a record written before goal_each was kept
+    (run / held_out_file(2)).write_text(json.dumps(old))
+    assert held_out(run, episodes=2, workers=1) == old  # the summary figures: the cache serves
+    again = held_out(run, episodes=2, workers=1, per_episode=True)
+    assert again["goal_each"] == first["goal_each"] and again["success"] == first["success"]
+    assert "goal_each" in json.loads((run / held_out_file(2)).read_text())

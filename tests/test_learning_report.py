@@ -184,3 +184,26 @@ def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(t
     assert code == 130, err
     assert "stopped deck1-paper-ddpg-seed0, unfinished: run the command again to resume it" in out
     assert (first / "checkpoint.pt").exists() and not (tmp_path / "deck1-paper-mddpg-seed0").exists()
+
+
+def test_the_held_out_difference_adds_the_interval_over_seeds_and_episodes(capsys, monkeypatch):
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("learning_report", ROOT / "benchmarks" / "learning.py")
+    learning = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(learning)
+    # three seeds each 5 points apart (85 against 80 of 100 held-out episodes): no width over seeds
+    ddpg = [int(i < 80) for i in range(100)]
+    mddpg = [int(i < 70 or 80 <= i < 95) for i in range(100)]
+    summary = {"mddpg": {"seeds": [0, 1, 2], "success_each": [0.85] * 3, "goal_each": [mddpg] * 3},
+               "ddpg": {"seeds": [0, 1, 2], "success_each": [0.80] * 3, "goal_each": [ddpg] * 3}}
+    learning.print_differences(summary, ["mddpg", "ddpg"])
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("mddpg - ddpg: success +5.0 points, paired over seeds 0, 1, 2 (95 % interval +5.0 to "
+                           "+5.0 points; over seeds and episodes, paired by episode, -")
+    # without per-episode records (the seed-500 stream) only the interval over seeds
+    for arm in summary.values():
+        del arm["goal_each"]
+    learning.print_differences(summary, ["mddpg", "ddpg"])
+    assert capsys.readouterr().out.strip().endswith("(95 % interval +5.0 to +5.0 points)")

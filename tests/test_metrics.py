@@ -12,6 +12,7 @@ from deck_sim.metrics import (
     Z95,
     mean_interval,
     near_misses,
+    paired_bootstrap_interval,
     path_length,
     rate_interval,
     shortest_path,
@@ -78,6 +79,58 @@ def test_wilson_intervals_by_hand():
     assert all(math.isnan(v) for v in rate_interval(0, 0))
     with pytest.raises(ValueError, match="successes"):
         rate_interval(11, 10)
+
+
+outcomes = st.integers(1, 4).flatmap(
+    lambda seeds: st.integers(1, 30).flatmap(
+        lambda eps: st.tuples(*[st.lists(st.lists(st.integers(0, 1), min_size=eps, max_size=eps),
+                                         min_size=seeds, max_size=seeds)] * 2)
+    )
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(outcomes, st.floats(-3.0, 3.0))
+def test_paired_bootstrap_is_antisymmetric_and_moves_with_a_shift(pair, shift):
+    a, b = (np.array(x, dtype=np.float64) for x in pair)
+    m, lo, hi = paired_bootstrap_interval(a, b, resamples=500, seed=3)
+    assert lo <= hi and -1.0 <= lo and hi <= 1.0
+    assert m == pytest.approx(float((a - b).mean()))
+    # the same resamples: swapping the agents mirrors the interval, shifting one shifts it
+    assert paired_bootstrap_interval(b, a, resamples=500, seed=3) == pytest.approx((-m, -hi, -lo))
+    assert paired_bootstrap_interval(a + shift, b, resamples=500, seed=3) == pytest.approx((m + shift, lo + shift,
+                                                                                           hi + shift))
+    assert paired_bootstrap_interval(a, a, resamples=500, seed=3) == (0.0, 0.0, 0.0)
+
+
+def test_paired_bootstrap_widens_where_seeds_agree_but_episodes_differ():
+    # three seeds each 5 points apart: the t interval over seeds has no width, the bootstrap carries the episodes
+    rng = np.random.default_rng(0)
+    b = (rng.random((3, 100)) < 0.8).astype(float)
+    a = b.copy()
+    for row in a:
+        row[np.flatnonzero(row == 0)[:5]] = 1.0  # five more successes on each seed
+    assert mean_interval((a - b).mean(axis=1)) == pytest.approx((0.05, 0.05, 0.05))
+    m, lo, hi = paired_bootstrap_interval(a, b)
+    assert m == pytest.approx(0.05) and 0.0 < lo < 0.05 < hi < 0.1
+    # an agent that wins on some episodes and loses on others by the same net count: wider still, across zero
+    c = b.copy()
+    for row in c:
+        ones, zeros = np.flatnonzero(row == 1), np.flatnonzero(row == 0)
+        row[zeros[:10]], row[ones[:5]] = 1.0, 0.0
+    m2, lo2, hi2 = paired_bootstrap_interval(c, b)
+    assert m2 == pytest.approx(0.05) and lo2 < lo and hi2 > hi
+    assert paired_bootstrap_interval(c, b) == (m2, lo2, hi2)  # seeded: the same interval every time
+
+
+def test_paired_bootstrap_refuses_unpaired_shapes_by_name():
+    with pytest.raises(ValueError, match=r"\(seeds, episodes\) arrays of one shape"):
+        paired_bootstrap_interval(np.zeros((2, 5)), np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="seeds, episodes"):
+        paired_bootstrap_interval(np.zeros(5), np.zeros(5))
+    with pytest.raises(ValueError, match="resamples must be at least 1"):
+        paired_bootstrap_interval(np.zeros((1, 2)), np.zeros((1, 2)), resamples=0)
+    assert all(math.isnan(v) for v in paired_bootstrap_interval(np.zeros((0, 0)), np.zeros((0, 0))))
 
 
 def test_mean_interval_by_hand():

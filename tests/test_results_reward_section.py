@@ -25,8 +25,10 @@ def make_results():
     return module
 
 
-def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps: int = 1_000_000) -> None:
-    """A run folder of ``deck1-reward`` whose actor's held-out record is already cached (no evaluation)."""
+def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps: int = 1_000_000,
+         goal_each: list[int] | None = None) -> None:
+    """A run folder of ``deck1-reward`` whose actor's held-out record is already cached (no evaluation); each
+    episode's success is the first ``success`` share of the 100 episodes unless ``goal_each`` gives it."""
     run = out / f"deck1-reward-{algo}-seed{seed}"
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": seed, "total_steps": 1_000_000}))
@@ -34,7 +36,8 @@ def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps:
     shutil.copyfile(TRAINED_DIR / f"deck1_{algo}.npz", run / "actor_best.npz")
     digest = hashlib.sha256((run / "actor_best.npz").read_bytes()).hexdigest()
     record = {"actor_sha256": digest, "episodes": 100, "seed": 100_000, "success": success, "collision": 1 - success,
-              "path_ratio": 1.1, "turning_deg": turning, "selected_at_step": steps}
+              "path_ratio": 1.1, "turning_deg": turning, "selected_at_step": steps,
+              "goal_each": goal_each or [int(i < round(100 * success)) for i in range(100)]}
     (run / held_out_file(100)).write_text(json.dumps(record))
 
 
@@ -49,15 +52,30 @@ def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make
     # MDDPG: 90, 92, 94 -> mean 92, sd 2, t(2) 4.303 -> +- 4.97
     assert "| deck1 | mddpg | 3: 0, 1, 2 (1,000,000) | 30 min | 92.0 (87.0 to 97.0) | 90, 92, 94 | 98 |" in text
     assert "still training" in text.split("| deck1 | ddpg |")[1].splitlines()[0]
-    # differences 10, 12, 12 points: mean 11.3, sd 1.15, half-width 2.87
+    # differences 10, 12, 12 points: mean 11.3, sd 1.15, half-width 2.87; every episode MDDPG wins is one DDPG
+    # lost, so the bootstrap over seeds and episodes lies above zero too
     assert "mddpg - ddpg, success paired over seeds 0, 1, 2: +11.3 points, mddpg ahead (95 % interval +8.5 to " \
-           "+14.2 points)" in text
+           "+14.2 points over seeds; +" in text
     assert "MDDPG turns more than DDPG (200 against 150 deg" in text
     targets = "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
     assert "on deck1: 92.0 % (mean of 3 seed(s)) against the target of 90 % and the paper's 98 %: met." in targets
     assert "MDDPG from the reward alone on deck2: no run yet" in targets
     runs["mddpg"][2]["finished"] = False  # a seed still training: no verdict yet
     assert "not decided: 3 seed(s), 2 finished" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
+
+
+def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, make_results):
+    # each seed 5 points apart, so the interval over seeds has no width, but MDDPG wins 15 episodes and loses 10 on
+    # each: over seeds and episodes the difference is not separated from zero
+    for seed in range(3):
+        ddpg = [int(i < 80) for i in range(100)]
+        mddpg = [int(i < 70 or 80 <= i < 95) for i in range(100)]
+        _run(tmp_path, "mddpg", seed, 0.85, 200.0, goal_each=mddpg)
+        _run(tmp_path, "ddpg", seed, 0.80, 150.0, goal_each=ddpg)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    lines = [x for x in make_results.ablation_lines("deck1", runs) if "mddpg - ddpg" in x]
+    assert len(lines) == 1 and "+5.0 points, mddpg not separated (95 % interval +5.0 to +5.0 points over seeds; " in \
+        lines[0] and "over seeds and episodes, paired by episode)" in lines[0]
 
 
 class _NoShipped:

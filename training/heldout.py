@@ -8,7 +8,8 @@ episodes of every table in ``docs/results.md``), which no training, demonstratio
 ``held_out(run)`` evaluates the actor that ``scripts/train_shipped.py`` would ship from the run
 (``training.final_fit.shipped_actor``) and writes ``heldout_<episodes>.json`` beside it. The file names the actor by its
 SHA-256, so a later call returns it without evaluating again until the actor changes (an unfinished run's
-``actor_best.npz`` does, at each better evaluation).
+``actor_best.npz`` does, at each better evaluation). The record keeps each episode's success (``goal_each``), the
+values a paired comparison of two agents resamples (``deck_sim.metrics.paired_bootstrap_interval``).
 """
 
 from __future__ import annotations
@@ -36,7 +37,12 @@ class HeldOutError(RuntimeError):
 
 
 def held_out(
-    run: str | os.PathLike[str], episodes: int = 100, workers: int | None = None, *, refresh: bool = False
+    run: str | os.PathLike[str],
+    episodes: int = 100,
+    workers: int | None = None,
+    *,
+    refresh: bool = False,
+    per_episode: bool = False,
 ) -> dict[str, Any]:
     """The run's shipped actor on ``episodes`` held-out episodes of its scene.
 
@@ -45,13 +51,15 @@ def held_out(
         episodes: Episodes ``DEFAULT_SEED`` to ``DEFAULT_SEED + episodes - 1``.
         workers: Evaluation processes (default: the CPU count).
         refresh: Evaluate again even when the run folder holds this actor's figures.
+        per_episode: Evaluate again when the cached record lacks ``goal_each`` (a record written before it was kept).
 
     Returns:
         ``{"success", "collision", "timeout", "off_surface"}`` (fractions) with Wilson 95 % intervals
         (``success_ci`` ...), ``reward``, ``path_ratio`` (path over the shortest static path) and ``turning_deg``
         (degrees per successful episode) with Student-t 95 % intervals, and the record of what was measured:
         ``scene``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
-        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit.
+        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit; ``goal_each`` is
+        1 for each episode, in episode order, that reached the target and 0 for the others.
 
     Raises:
         HeldOutError: The folder has no ``config.json`` or no actor yet.
@@ -75,7 +83,7 @@ def held_out(
             digest,
             episodes,
             DEFAULT_SEED,
-        ):
+        ) and not (per_episode and "goal_each" not in record):
             return record
     scene = str(config["scene"])
     res = evaluate(
@@ -108,6 +116,7 @@ def held_out(
         "collision_partners": dict(
             sorted(Counter(str(r["collision_partner"]) for r in res.episodes if r["outcome"] == "collision").items())
         ),
+        "goal_each": [int(r["outcome"] == "goal") for r in sorted(res.episodes, key=lambda r: r["episode"])],
         "wall_s": res.wall_s,
         "git_commit": git_commit(),
         "machine": machine(),
