@@ -38,7 +38,7 @@ from training.recipes import load_recipe  # noqa: E402
 
 VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     # DQN (training.baseline_config.DQNConfig): learning rate, target network period, exploration schedule, update
-    # frequency, and experience from 8 environments at once
+    # frequency, experience from 8 environments at once, and DDPG's batch of 256 transitions
     "dqn": {
         "recipe": {},
         "lr3e-4": {"learning_rate": 3e-4},
@@ -46,6 +46,7 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "explore0.1": {"exploration_fraction": 0.1},
         "freq1": {"train_freq": 1},
         "envs8": {"num_envs": 8},
+        "batch256": {"batch_size": 256},
     },
     # A2C (training.baseline_config.A2CConfig): rollout length, entropy bonus, learning rate, GAE
     "a2c": {
