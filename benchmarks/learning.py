@@ -28,9 +28,9 @@ Beside each arm's mean over seeds, each table gives the 95 % interval of its suc
 to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
 for each neighbour pair of the paper's ranking MDDPG > DDPG > DQN > A2C in recipe mode, it prints the difference of
 their success, paired by seed, with its 95 % interval over the seeds both have; on the held-out episodes also the
-interval of a two-level bootstrap over seeds and episodes, each episode paired with the same episode of the other
-arm (``deck_sim.metrics.paired_bootstrap_interval``), which carries the episodes' sampling noise that the interval
-over a few seeds' means can miss.
+interval of a bootstrap over seeds and episodes, every run playing the same episodes
+(``deck_sim.metrics.paired_bootstrap_interval``), which carries the episodes' sampling noise that the interval over
+a few seeds' means can miss.
 """
 
 from __future__ import annotations
@@ -371,7 +371,7 @@ def run_config(recipe: object, arm: str, scene: str, seed: int, args: argparse.N
 def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
     """For each pair of ``ablation_pairs``, the difference of success paired by seed, with its 95 % interval over
     the seeds both arms have (``summary[arm]``: ``seeds`` and ``success_each``); with ``goal_each`` (each seed's
-    per-episode successes on the same episodes) also the paired two-level bootstrap interval."""
+    per-episode successes on the same episodes) also the bootstrap interval over seeds and episodes."""
     for with_prediction, without in ablation_pairs(arms):
         if with_prediction not in summary or without not in summary:
             continue  # (an arm with no evaluation yet)

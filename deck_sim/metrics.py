@@ -142,17 +142,20 @@ def paired_bootstrap_interval(
     Args:
         a, b: (seeds, episodes) per-episode values of two agents (1.0 for a success, 0.0 otherwise, or any
             per-episode figure). Row k of both comes from training seed k (the two agents' runs are paired by seed)
-            and column j from held-out episode j (the same episode for both).
+            and column j from held-out episode j, the same episode for both agents and for every seed.
         resamples: Bootstrap resamples.
         seed: Seed of the resampling, so that a table prints the same interval every time.
 
-    Each resample draws the seeds with replacement and then, within each drawn seed, the episodes with replacement,
-    the same episodes for both agents; the interval is the 2.5 and 97.5 percentiles of the resampled mean
-    differences (a two-level percentile bootstrap). It carries both the spread between training seeds and the
-    sampling of episodes, which a Student-t interval over the seeds' mean differences (``mean_interval``) leaves
-    out: three seeds whose differences happen to agree give that one no width at all. With few seeds the bootstrap
-    understates the spread between seeds (by the factor (n - 1) / n of its variance), so tables give it beside the
-    interval over seeds, not in its place. One seed: only the episodes are resampled. NaN for no values.
+    Seeds and episodes are crossed (every seed plays the same episodes), so each resample draws the seeds with
+    replacement and, apart from them, the episodes with replacement, the same drawn episodes for every drawn seed and
+    both agents; the interval is the 2.5 and 97.5 percentiles of the resampled mean differences. This is the
+    pigeonhole bootstrap of crossed random effects (Owen 2007, "The pigeonhole bootstrap", Ann. Appl. Stat.): it
+    carries the spread between training seeds, the sampling of episodes (an episode that favours one agent on every
+    seed counts as one episode) and their interaction, and errs on the wide side for the latter two. A Student-t
+    interval over the seeds' mean differences (``mean_interval``) leaves the episodes out: three seeds whose
+    differences happen to agree give it no width at all. With few seeds the bootstrap understates the spread
+    between seeds (by the factor (n - 1) / n of its variance), so tables give it beside the interval over seeds,
+    not in its place. One seed: only the episodes are resampled. NaN for no values.
 
     Raises:
         ValueError: ``a`` and ``b`` differ in shape or are not two-dimensional, or ``resamples`` is below 1.
@@ -168,11 +171,11 @@ def paired_bootstrap_interval(
     n_seeds, n_episodes = d.shape
     rng = np.random.default_rng(seed)
     means = np.empty(resamples)
-    chunk = max(1, 4_000_000 // d.size)  # (bounds the index arrays to a few tens of MB)
+    chunk = max(1, 4_000_000 // d.size)  # (bounds the gathered (k, seeds, episodes) array to a few tens of MB)
     for start in range(0, resamples, chunk):
         k = min(chunk, resamples - start)
         rows = rng.integers(0, n_seeds, size=(k, n_seeds, 1))
-        cols = rng.integers(0, n_episodes, size=(k, n_seeds, n_episodes))
+        cols = rng.integers(0, n_episodes, size=(k, 1, n_episodes))  # (the same episodes for every seed)
         means[start:start + k] = d[rows, cols].mean(axis=(1, 2))
     low, high = np.percentile(means, [2.5, 97.5])
     return float(d.mean()), float(low), float(high)

@@ -239,7 +239,7 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
 def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
     """MDDPG against DDPG (the prediction ablation) and each neighbour of the paper's ranking: the difference of
     held-out success paired by seed, with its 95 % interval over seeds and, where the records keep each episode's
-    success, the two-level bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
+    success, the bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
     "behind" only when every interval given excludes zero; and which of MDDPG and DDPG turns more and drives
     further, against the paper's direction."""
     out = []
@@ -256,14 +256,16 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
             _, blo, bhi = paired_bootstrap_interval(np.array([ra[s]["goal_each"] for s in both]),
                                                     np.array([rb[s]["goal_each"] for s in both]))
             intervals.append((blo, bhi, "over seeds and episodes, paired by episode"))
+        spread = "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}" for x, y, how in intervals)
         if len(both) > 1:
-            verdict = ("ahead" if all(x[0] > 0 for x in intervals) else
-                       "behind" if all(x[1] < 0 for x in intervals) else "not separated") + " (95 % interval " + \
-                "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}" for x, y, how in intervals) + ")"
-        else:
-            verdict = "one seed, no interval over seeds"
+            verdict = f"{a} " + ("ahead" if all(x[0] > 0 for x in intervals) else
+                                 "behind" if all(x[1] < 0 for x in intervals) else "not separated") + \
+                f" (95 % interval {spread})"
+        else:  # (one seed's episodes say nothing of the spread between training seeds)
+            verdict = "one seed, no verdict" + (f" (95 % interval {spread.replace('over seeds and ', 'over ')})"
+                                                if intervals else "")
         out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}: "
-                   f"{100 * m:+.1f} points, {a} {verdict}; the paper ranks {a} above {b}.")
+                   f"{100 * m:+.1f} points, {verdict}; the paper ranks {a} above {b}.")
     if "mddpg" in algos and "ddpg" in algos:
         for key, paper_key, more, less, what, unit, paper_unit in (
             ("turning_deg", "turning_deg", "more", "less", " turns {} than DDPG", "deg per successful episode", "deg"),

@@ -10,7 +10,7 @@ import pytest
 
 from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate
 from deck_sim.policies import TRAINED_DIR
-from training.heldout import HeldOutError, held_out, held_out_file
+from training.heldout import HeldOutError, goal_each, held_out, held_out_file
 
 
 def _run(tmp_path, actor: str = "deck1_ddpg.npz"):
@@ -62,3 +62,12 @@ def test_a_record_without_per_episode_successes_is_measured_again_only_when_they
     again = held_out(run, episodes=2, workers=1, per_episode=True)
     assert again["goal_each"] == first["goal_each"] and again["success"] == first["success"]
     assert "goal_each" in json.loads((run / held_out_file(2)).read_text())
+
+
+def test_goal_each_gives_each_episode_the_share_of_its_aircraft_at_their_targets():
+    rows = [{"episode": e, "aircraft": k, "outcome": o}
+            for e, k, o in [(1, "a", "goal"), (0, "a", "goal"), (0, "b", "collision"), (1, "b", "goal")]]
+    assert goal_each(rows, 2) == [0.5, 1]
+    assert goal_each([{"episode": 0, "outcome": "timeout"}], 1) == [0]
+    with pytest.raises(HeldOutError, match="1 distinct episodes, expected 0 to 1"):
+        goal_each(rows[:1], 2)

@@ -123,6 +123,34 @@ def test_paired_bootstrap_widens_where_seeds_agree_but_episodes_differ():
     assert paired_bootstrap_interval(c, b) == (m2, lo2, hi2)  # seeded: the same interval every time
 
 
+def test_paired_bootstrap_resamples_the_seeds():
+    # all the difference lies between the two seeds: an interval over episodes alone would have no width
+    a = np.array([[1.0] * 50, [0.0] * 50])
+    assert paired_bootstrap_interval(a, np.zeros_like(a)) == (0.5, 0.0, 1.0)
+
+
+def test_paired_bootstrap_counts_an_episode_played_by_every_seed_once():
+    # every seed plays the same episodes: one seed's outcomes repeated three times carry no more information
+    # than that seed alone, and the interval is as wide (drawing each seed's episodes apart would narrow it by
+    # the square root of three)
+    rng = np.random.default_rng(1)
+    a, b = (rng.random((1, 100)) < p for p in (0.85, 0.8))
+    _, lo1, hi1 = paired_bootstrap_interval(a, b)
+    _, lo3, hi3 = paired_bootstrap_interval(np.repeat(a, 3, axis=0), np.repeat(b, 3, axis=0))
+    assert (hi3 - lo3) == pytest.approx(hi1 - lo1, rel=0.15)
+
+
+def test_paired_bootstrap_matches_the_standard_error_over_several_chunks():
+    # 2 x 1000 values resample in several chunks; the two rows agree, so the interval is that of 1000 episodes,
+    # whose half-width is close to 1.96 standard errors of their mean
+    rng = np.random.default_rng(2)
+    d = (rng.random(1000) < 0.3).astype(float) - (rng.random(1000) < 0.2).astype(float)
+    a = np.repeat(d[None, :], 2, axis=0)
+    m, lo, hi = paired_bootstrap_interval(a, np.zeros_like(a))
+    assert m == pytest.approx(d.mean())
+    assert (hi - lo) / 2 == pytest.approx(1.96 * d.std() / np.sqrt(d.size), rel=0.1)
+
+
 def test_paired_bootstrap_refuses_unpaired_shapes_by_name():
     with pytest.raises(ValueError, match=r"\(seeds, episodes\) arrays of one shape"):
         paired_bootstrap_interval(np.zeros((2, 5)), np.zeros((2, 4)))

@@ -78,6 +78,16 @@ def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, m
         lines[0] and "over seeds and episodes, paired by episode)" in lines[0]
 
 
+def test_one_seed_gives_its_episodes_interval_but_no_verdict(tmp_path, make_results):
+    _run(tmp_path, "mddpg", 0, 0.9, 200.0)
+    _run(tmp_path, "ddpg", 0, 0.8, 150.0)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    runs = {algo: [r for r in recs if r["seed"] == 0] for algo, recs in runs.items()}  # (not the shipped seeds)
+    line = make_results.ablation_lines("deck1", runs)[0]
+    assert "+10.0 points, one seed, no verdict (95 % interval +" in line and "points over episodes, paired by " \
+        "episode)" in line
+
+
 class _NoShipped:
     """Evaluation results with no shipped agent in them."""
 

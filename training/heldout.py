@@ -51,15 +51,17 @@ def held_out(
         episodes: Episodes ``DEFAULT_SEED`` to ``DEFAULT_SEED + episodes - 1``.
         workers: Evaluation processes (default: the CPU count).
         refresh: Evaluate again even when the run folder holds this actor's figures.
-        per_episode: Evaluate again when the cached record lacks ``goal_each`` (a record written before it was kept).
+        per_episode: Evaluate again when the cached record lacks ``goal_each`` (a record written before it was kept)
+            or holds another number of values than ``episodes``.
 
     Returns:
         ``{"success", "collision", "timeout", "off_surface"}`` (fractions) with Wilson 95 % intervals
         (``success_ci`` ...), ``reward``, ``path_ratio`` (path over the shortest static path) and ``turning_deg``
         (degrees per successful episode) with Student-t 95 % intervals, and the record of what was measured:
         ``scene``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
-        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit; ``goal_each`` is
-        1 for each episode, in episode order, that reached the target and 0 for the others.
+        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit; ``goal_each``
+        gives each episode, in episode order, the share of its aircraft that reached their targets (1 or 0 with one
+        aircraft).
 
     Raises:
         HeldOutError: The folder has no ``config.json`` or no actor yet.
@@ -83,7 +85,7 @@ def held_out(
             digest,
             episodes,
             DEFAULT_SEED,
-        ) and not (per_episode and "goal_each" not in record):
+        ) and not (per_episode and len(record.get("goal_each") or ()) != episodes):
             return record
     scene = str(config["scene"])
     res = evaluate(
@@ -116,7 +118,7 @@ def held_out(
         "collision_partners": dict(
             sorted(Counter(str(r["collision_partner"]) for r in res.episodes if r["outcome"] == "collision").items())
         ),
-        "goal_each": [int(r["outcome"] == "goal") for r in sorted(res.episodes, key=lambda r: r["episode"])],
+        "goal_each": goal_each(res.episodes, episodes),
         "wall_s": res.wall_s,
         "git_commit": git_commit(),
         "machine": machine(),
@@ -125,3 +127,19 @@ def held_out(
     tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     os.replace(tmp, cache)
     return record
+
+
+def goal_each(rows: list[dict[str, Any]], episodes: int) -> list[int | float]:
+    """Each episode's share of aircraft that reached their targets, in episode order (1 or 0 where all or none
+    did), from the evaluation's rows: one row per episode, or one per aircraft of a multi-aircraft scene.
+
+    Raises:
+        HeldOutError: The rows do not hold episodes 0 to ``episodes - 1``.
+    """
+    by_episode: dict[int, list[bool]] = {}
+    for r in rows:
+        by_episode.setdefault(int(r["episode"]), []).append(r["outcome"] == "goal")
+    if sorted(by_episode) != list(range(episodes)):
+        raise HeldOutError(f"the evaluation returned {len(by_episode)} distinct episodes, expected 0 to {episodes - 1}")
+    shares = [sum(v) / len(v) for _, v in sorted(by_episode.items())]
+    return [int(x) if x in (0.0, 1.0) else x for x in shares]
