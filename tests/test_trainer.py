@@ -16,6 +16,18 @@ from training.envs import FAR
 from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, Trainer, load_checkpoint
 
 
+def test_a_run_observes_its_forecast_and_its_actor_asks_for_it(tmp_path):
+    from deck_sim.policies import LearnedPolicy
+
+    t = Trainer(_short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10,
+                       forecast="constant_velocity"), tmp_path / "r", progress=False)
+    t.train()
+    policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
+    assert policy.predictor == "constant_velocity"
+    assert policy.scene_overrides["episode__predictor"] == "constant_velocity"
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["forecast"] == "constant_velocity"
+
+
 @pytest.mark.slow
 def test_two_seeded_runs_give_identical_losses_and_actions(tmp_path):
     """...and it makes no difference whether the environments step in a worker process or inline."""

@@ -37,6 +37,22 @@ def test_scene_overrides_are_checked_with_the_algorithms_predictor():
         make_config("reward", algo="mddpg", scene_overrides={"episode__horizon": 0})
 
 
+def test_the_forecast_is_mddpgs_and_named_when_wrong():
+    from training.config import arm_config
+
+    assert make_config("reward").predictor == "mpc"
+    assert arm_config("reward-mddpg-with-oracle", "deck1", 1000, 0).predictor == "oracle"
+    assert arm_config("reward-mddpg-with-cvforecast", "deck1", 1000, 0).predictor == "constant_velocity"
+    with pytest.raises(ConfigError, match="forecast: expected one of constant_velocity, stationary, oracle, mpc, "
+                                          "got 'none'"):
+        make_config("reward", forecast="none")
+    with pytest.raises(ConfigError, match="forecast: expected one of"):
+        make_config("reward", forecast="kalman")
+    with pytest.raises(ConfigError, match="forecast: ddpg observes no forecast, got forecast = 'oracle'"):
+        arm_config("reward-ddpg-with-oracle", "deck1", 1000, 0)
+    assert TrainConfig.from_dict({"algo": "ddpg"}).predictor == "none"  # (a saved config without the field)
+
+
 def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():
     from training.config import arm_config, bc_weight_at
 

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from deck_sim import agents
+from deck_sim.control.prediction import PREDICTOR_NAMES
 from deck_sim.evaluation import TRAIN_SEED_BASE
 from deck_sim.policies.regimes import TEACHING_FIELDS, config_regime
 from training.noise import HOLD_ACTIONS
@@ -141,6 +142,11 @@ class TrainConfig:
 
     algo: str = "mddpg"
     """``mddpg`` (the paper's method: observations carry the MPC prediction) or ``ddpg`` (current positions only)."""
+    forecast: str = "mpc"
+    """The predictor whose forecast MDDPG observes (``deck_sim.control.prediction.PREDICTOR_NAMES`` but ``none``):
+    ``mpc``, the paper's; ``constant_velocity`` or ``stationary``; ``oracle``, the movers' true future, simulated
+    ahead at every step (about nine times the cost of a deck step): a privileged observation, for asking whether
+    the learner can use a perfect forecast at all, never an agent to compare with the others. DDPG observes none."""
     scene: str = "deck1"
     """Scene name or TOML path."""
     scene_overrides: dict[str, Any] = field(default_factory=dict)
@@ -342,8 +348,8 @@ class TrainConfig:
 
     @property
     def predictor(self) -> str:
-        """The predictor filling the observation: ``mpc`` for MDDPG, ``none`` for DDPG."""
-        return "mpc" if self.algo == "mddpg" else "none"
+        """The predictor filling the observation: ``forecast`` (``mpc``) for MDDPG, ``none`` for DDPG."""
+        return self.forecast if self.algo == "mddpg" else "none"
 
     def _check_observed_footprints(self) -> None:
         """``ConfigError`` unless the scene, with the run's overrides, observes every obstacle's footprint."""
@@ -363,6 +369,11 @@ class TrainConfig:
         """Raise ``ConfigError`` naming the first field with an impossible value; return self."""
         if self.algo not in ALGOS:
             raise ConfigError(f"algo: expected one of {', '.join(ALGOS)}, got {self.algo!r}")
+        if self.forecast not in PREDICTOR_NAMES or self.forecast == "none":
+            names = ", ".join(p for p in PREDICTOR_NAMES if p != "none")
+            raise ConfigError(f"forecast: expected one of {names}, got {self.forecast!r} (DDPG is MDDPG without one)")
+        if self.algo != "mddpg" and self.forecast != "mpc":
+            raise ConfigError(f"forecast: {self.algo} observes no forecast, got forecast = {self.forecast!r}")
         if self.noise not in NOISES:
             raise ConfigError(f"noise: expected one of {', '.join(NOISES)}, got {self.noise!r}")
         if not 0.0 <= self.hold_prob <= 1.0:
@@ -559,6 +570,8 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "slow": {"bc_slow_weight": 5.0},
     "data": {"num_envs": 8, "updates_per_step": 0.125},
     "size": {"scene_overrides": {"episode__mover_size": True}},
+    "oracle": {"forecast": "oracle"},
+    "cvforecast": {"forecast": "constant_velocity"},
     "polish": {"polish_epochs": 20},
     "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
     "near": {"scene_overrides": {"episode__near_steps": 4}},
@@ -602,7 +615,9 @@ closest approach over the next 6 steps of the MPC forecast, scene field ``reward
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
 observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
-"stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy)).
+"stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
+``oracle``: MDDPG observes the movers' true future in place of the MPC forecast, ``forecast = "oracle"`` (a
+privileged diagnostic); ``cvforecast``: a constant-velocity forecast, ``forecast = "constant_velocity"``).
 Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 
