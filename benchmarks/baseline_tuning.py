@@ -38,7 +38,7 @@ from training.recipes import load_recipe  # noqa: E402
 
 VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     # DQN (training.baseline_config.DQNConfig): learning rate, target network period, exploration schedule, update
-    # frequency, experience from 8 environments at once, and DDPG's batch of 256 transitions
+    # frequency, experience from 8 environments at once, DDPG's batch of 256 transitions and its 400 x 300 layers
     "dqn": {
         "recipe": {},
         "lr3e-4": {"learning_rate": 3e-4},
@@ -47,8 +47,10 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "freq1": {"train_freq": 1},
         "envs8": {"num_envs": 8},
         "batch256": {"batch_size": 256},
+        "net400x300": {"net_arch": (400, 300)},
     },
-    # A2C (training.baseline_config.A2CConfig): rollout length, entropy bonus, learning rate, GAE
+    # A2C (training.baseline_config.A2CConfig): rollout length, entropy bonus, learning rate, GAE, DDPG's 400 x 300
+    # layers
     "a2c": {
         "recipe": {},
         "nsteps5": {"n_steps": 5},
@@ -56,6 +58,7 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "ent0.01": {"ent_coef": 0.01},
         "lr3e-4": {"learning_rate": 3e-4},
         "gae0.95": {"gae_lambda": 0.95},
+        "net400x300": {"net_arch": (400, 300)},
     },
 }
 """The grid: per algorithm, each variant's fields over the recipe's (``recipe``: none, the recipe as it is)."""
