@@ -63,6 +63,13 @@ def test_ctrl_c_stops_a_baseline_run_with_its_model_saved_and_resume_finishes_it
     assert not (out / "actor.npz").exists() and not list(out.glob("*.tmp*"))
     assert load_baseline(out) is not None
     assert signal.getsignal(signal.SIGINT) is before  # (the handler is given back)
+    if algo == "dqn":  # the replay buffer is saved with the model: every step taken but the one the stop came
+        # in (SB3 ends its rollout before storing that step's transition)
+        from stable_baselines3 import DQN
+
+        model = DQN.load(str(out / "model.zip"))
+        model.load_replay_buffer(str(out / "replay_buffer.pkl"))
+        assert model.replay_buffer.size() == stopped["step"] - 1
     done = train_baseline(algo, "deck1", 400, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
     assert not done["stopped"] and done["step"] == 400 and (out / "actor.npz").exists()
 
@@ -153,3 +160,16 @@ def test_a_baseline_steps_several_environments_each_on_its_own_episode_stream(tm
         np.testing.assert_array_equal(obs, expected)
         first.append(obs)
     assert not np.array_equal(first[0], first[1])
+
+
+def test_a_damaged_dqn_replay_buffer_is_refused_by_name_and_left_in_place(tmp_path):
+    from training.baselines import train_baseline
+    from training.checkpoints import CheckpointError
+
+    out = tmp_path / "dqn"
+    kwargs = {"learning_starts": 20, "buffer_size": 1000}
+    train_baseline("dqn", "deck1", 32, 0, out, progress=False, eval_every=0, eval_episodes=1, log_every=16, **kwargs)
+    (out / "replay_buffer.pkl").write_bytes(b"not a pickle")
+    with pytest.raises(CheckpointError, match=r"replay_buffer.pkl: not a readable replay buffer"):
+        train_baseline("dqn", "deck1", 64, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
+    assert (out / "replay_buffer.pkl").read_bytes() == b"not a pickle"

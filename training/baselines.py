@@ -261,8 +261,11 @@ def train_baseline(
     written). Returns the last held-out evaluation and the run's counters, in the shape ``Trainer.train`` returns.
     Writes ``actor_best.npz`` (best periodic evaluation) and ``actor.npz`` (final) for
     ``deck_sim.policies.LearnedPolicy``. Ctrl-C stops the run after its current step with the model and its
-    normalisation saved (each file written whole, then renamed) and no actor exported; the summary's ``stopped``
-    is then true and ``resume`` goes on from that step.
+    normalisation saved (each file written whole, then renamed), and DQN's replay buffer (``replay_buffer.pkl``),
+    and no actor exported; the summary's ``stopped`` is then true and ``resume`` goes on from that step with the
+    networks, optimiser, normaliser, schedules and replay buffer as saved (every periodic evaluation saves them
+    too). The resumed run's environments start new episodes, so it does not repeat an unbroken run step for step
+    as a resumed DDPG run does.
     """
     if "total_steps" in overrides:
         raise ConfigError("total_steps: given by the steps argument (deck-sim train --steps)")
@@ -283,7 +286,7 @@ def train_baseline(
     venv = DummyVecEnv([_env_maker(algo, scene, seed, overrides, i) for i in range(cfg.num_envs)])
     keys = venv.envs[0].unwrapped.observation_keys
     shapes = venv.envs[0].unwrapped.composer_env.task.observation_shapes
-    model_path, norm_path = out / "model.zip", out / "vecnormalize.pkl"
+    model_path, norm_path, buffer_path = out / "model.zip", out / "vecnormalize.pkl", out / "replay_buffer.pkl"
     cls = DQN if algo == "dqn" else A2C
     done_steps = 0
     if resume:
@@ -299,6 +302,16 @@ def train_baseline(
         except Exception as err:
             raise CheckpointError(f"{model_path}: not a readable {algo} model ({_first_line(err)})") from err
         done_steps = int(model.num_timesteps)
+        if algo == "dqn":
+            if buffer_path.exists():
+                try:
+                    model.load_replay_buffer(str(buffer_path))
+                except Exception as err:
+                    raise CheckpointError(
+                        f"{buffer_path}: not a readable replay buffer ({_first_line(err)})"
+                    ) from err
+            else:
+                log.warning("%s: no replay buffer saved with the model; the resumed run starts with an empty one", out)
         if steps < done_steps:
             raise CheckpointError(
                 f"{out}: the run has done {done_steps} steps; a budget of {steps} steps (total_steps, --steps) is "
@@ -430,6 +443,10 @@ def train_baseline(
         tmp_model, tmp_norm = out / "model.tmp.zip", out / "vecnormalize.tmp.pkl"
         model.save(str(tmp_model))
         venv.save(str(tmp_norm))
+        if algo == "dqn":  # (DQN's replay buffer, so that a resumed run learns from what it had gathered)
+            tmp_buffer = out / "replay_buffer.tmp.pkl"
+            model.save_replay_buffer(str(tmp_buffer))
+            os.replace(tmp_buffer, buffer_path)
         os.replace(tmp_model, model_path)
         os.replace(tmp_norm, norm_path)
 
