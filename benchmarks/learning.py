@@ -388,7 +388,8 @@ def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
                 np.array([a["goal_each"][a["seeds"].index(s)] for s in both]),
                 np.array([b["goal_each"][b["seeds"].index(s)] for s in both]),
             )
-            spread += f"; over seeds and episodes, paired by episode, {100 * blo:+.1f} to {100 * bhi:+.1f} points"
+            over = "seeds and episodes" if len(both) > 1 else "its episodes"
+            spread += f"; over {over}, paired by episode, {100 * blo:+.1f} to {100 * bhi:+.1f} points"
         print(f"{with_prediction} - {without}: success {100 * m:+.1f} points, paired over seeds "
               f"{', '.join(map(str, both))} ({spread})")
 

@@ -255,15 +255,14 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
         if all("goal_each" in r[s] for r in (ra, rb) for s in both):
             _, blo, bhi = paired_bootstrap_interval(np.array([ra[s]["goal_each"] for s in both]),
                                                     np.array([rb[s]["goal_each"] for s in both]))
-            intervals.append((blo, bhi, "over seeds and episodes, paired by episode"))
+            intervals.append((blo, bhi, f"over {'seeds and ' if len(both) > 1 else ''}episodes, paired by episode"))
         spread = "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}" for x, y, how in intervals)
         if len(both) > 1:
             verdict = f"{a} " + ("ahead" if all(x[0] > 0 for x in intervals) else
                                  "behind" if all(x[1] < 0 for x in intervals) else "not separated") + \
                 f" (95 % interval {spread})"
         else:  # (one seed's episodes say nothing of the spread between training seeds)
-            verdict = "one seed, no verdict" + (f" (95 % interval {spread.replace('over seeds and ', 'over ')})"
-                                                if intervals else "")
+            verdict = "one seed, no verdict" + (f" (95 % interval {spread})" if intervals else "")
         out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}: "
                    f"{100 * m:+.1f} points, {verdict}; the paper ranks {a} above {b}.")
     if "mddpg" in algos and "ddpg" in algos:
