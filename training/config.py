@@ -173,6 +173,12 @@ class TrainConfig:
     """Discount factor of the TD target y = r + gamma * Q'(s', mu'(s')) (eq. 3)."""
     tau: float = 0.005
     """Soft target update rate theta' <- tau theta + (1 - tau) theta' (eq. 6)."""
+    actor_average: float = 0.0
+    """Rate of a slow Polyak average of the actor's weights, bar <- rate theta + (1 - rate) bar after every actor
+    update (0: off). Training never reads it (a run with it makes the same updates as one without); the run
+    exports it at its end as ``actor_avg.npz`` beside ``actor.npz``, so the two can be measured on the same
+    held-out episodes. 1e-4 averages over roughly the last 10,000 actor updates. Not with the final fit
+    (``polish_epochs``), which replaces the actor."""
     batch_size: int = 256
     """Transitions per update."""
     learner_precision: str = "float32"
@@ -374,6 +380,10 @@ class TrainConfig:
             raise ConfigError(f"forecast: expected one of {names}, got {self.forecast!r} (DDPG is MDDPG without one)")
         if self.algo != "mddpg" and self.forecast != "mpc":
             raise ConfigError(f"forecast: {self.algo} observes no forecast, got forecast = {self.forecast!r}")
+        if not 0.0 <= self.actor_average < 1.0:
+            raise ConfigError(f"actor_average: must lie in [0, 1), got {self.actor_average!r}")
+        if self.actor_average and self.polish_epochs:
+            raise ConfigError("actor_average: the final fit (polish_epochs) replaces the actor; use one or the other")
         if self.noise not in NOISES:
             raise ConfigError(f"noise: expected one of {', '.join(NOISES)}, got {self.noise!r}")
         if not 0.0 <= self.hold_prob <= 1.0:
@@ -572,6 +582,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "size": {"scene_overrides": {"episode__mover_size": True}},
     "oracle": {"forecast": "oracle"},
     "cvforecast": {"forecast": "constant_velocity"},
+    "avg": {"actor_average": 1e-4},
     "polish": {"polish_epochs": 20},
     "moverframe": {"scene_overrides": {"episode__predicted_frame": "mover"}},
     "near": {"scene_overrides": {"episode__near_steps": 4}},
@@ -617,7 +628,8 @@ observation, ``episode.predicted_approach``; ``wait``: exploration that now and 
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
 "stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
 ``oracle``: MDDPG observes the movers' true future in place of the MPC forecast, ``forecast = "oracle"`` (a
-privileged diagnostic); ``cvforecast``: a constant-velocity forecast, ``forecast = "constant_velocity"``).
+privileged diagnostic); ``cvforecast``: a constant-velocity forecast, ``forecast = "constant_velocity"``; ``avg``:
+the slow average of the actor exported as ``actor_avg.npz``, ``actor_average = 1e-4``).
 Several switches join with ``+``:
 ``tuned-mddpg-with-data+size``, ``reward-mddpg-with-her+nstep``."""
 

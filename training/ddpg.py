@@ -90,6 +90,12 @@ class DDPGAgent:
                 raise ValueError(f"actor_arch 'sets': the observation {sorted(self.shapes)} holds no obstacle set")
             self.norm.tie(list(set_indices(self.shapes, self.sets)[1].values()))
         self.set_actor_widths(hidden)  # the actor, its target and its optimiser (initialised before the critic)
+        self.actor_avg: nn.Module | None = None
+        """The slow Polyak average of the actor (``config.actor_average``; None when off)."""
+        if config.actor_average:
+            self.actor_avg = copy.deepcopy(self.actor)
+            for p in self.actor_avg.parameters():
+                p.requires_grad_(False)
         self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1)
         self.critic_target = copy.deepcopy(self.critic)
         for p in self.critic_target.parameters():
@@ -173,6 +179,8 @@ class DDPGAgent:
         if self.updates % cfg.policy_delay == 0:
             stats.update(self._update_actor(obs, batch, clone_only))
             soft_update(self.actor_target, self.actor, cfg.tau)
+            if self.actor_avg is not None:
+                soft_update(self.actor_avg, self.actor, cfg.actor_average)
             soft_update(self.critic_target, self.critic, cfg.tau)
         return stats
 
@@ -289,6 +297,7 @@ class DDPGAgent:
             "critic_opt": self.critic_opt.state_dict(),
             "generator": self.generator.get_state(),
             "updates": self.updates,
+            **({"actor_avg": self.actor_avg.state_dict()} if self.actor_avg is not None else {}),
         }
 
     def load_state_dict(self, state: dict[str, object]) -> None:
@@ -296,6 +305,8 @@ class DDPGAgent:
         try:
             for name in ("norm", "actor", "critic", "actor_target", "critic_target"):
                 getattr(self, name).load_state_dict(state[name])
+            if self.actor_avg is not None:
+                self.actor_avg.load_state_dict(state["actor_avg"])
             self.actor_opt.load_state_dict(state["actor_opt"])
             self.critic_opt.load_state_dict(state["critic_opt"])
         except (RuntimeError, KeyError) as err:
@@ -303,10 +314,14 @@ class DDPGAgent:
         self.generator.set_state(state["generator"])
         self.updates = int(state["updates"])
 
-    def export_actor(self) -> dict[str, np.ndarray]:
+    def export_actor(self, averaged: bool = False) -> dict[str, np.ndarray]:
         """The greedy policy as plain arrays (float32): the normaliser's statistics as ``forward`` applies them,
         each head layer's weight and bias (``w<i>``, ``b<i>``) and a set actor's encoder layers
-        (``<set>.w<i>``, ``<set>.b<i>``); ``actor_meta`` gives the record that goes with them."""
+        (``<set>.w<i>``, ``<set>.b<i>``); ``actor_meta`` gives the record that goes with them. ``averaged``: the
+        slow average of the actor (``config.actor_average``) in place of the actor."""
+        if averaged and self.actor_avg is None:
+            raise ValueError("no averaged actor: the run's config has actor_average = 0")
+        actor = self.actor_avg if averaged else self.actor
         mean, std = self.norm.stats()
         out: dict[str, np.ndarray] = {
             "norm_enabled": np.array(self.norm.enabled),
@@ -315,9 +330,9 @@ class DDPGAgent:
             "norm_clip": np.array(self.norm.clip, dtype=np.float32),
         }
         if self.sets:
-            nets = {"": self.actor.head, **{f"{name}.": self.actor.encoders[name] for name in self.sets}}
+            nets = {"": actor.head, **{f"{name}.": actor.encoders[name] for name in self.sets}}
         else:
-            nets = {"": self.actor.net}
+            nets = {"": actor.net}
         for prefix, net in nets.items():
             linear = [m for m in net if isinstance(m, nn.Linear)]
             for i, layer in enumerate(linear):

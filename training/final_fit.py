@@ -56,11 +56,12 @@ def actor_meta(
     }
 
 
-def save_actor(path: str | os.PathLike[str], agent: DDPGAgent, meta: dict[str, Any]) -> None:
-    """Write the agent's greedy actor as a weights-only ``.npz`` (atomically)."""
+def save_actor(path: str | os.PathLike[str], agent: DDPGAgent, meta: dict[str, Any], averaged: bool = False) -> None:
+    """Write the agent's greedy actor (``averaged``: its slow average, ``DDPGAgent.actor_avg``) as a weights-only
+    ``.npz`` (atomically)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, meta=np.array(json.dumps(meta)), **agent.export_actor())
+    np.savez(tmp, meta=np.array(json.dumps(meta)), **agent.export_actor(averaged))
     os.replace(tmp, path)
 
 
@@ -142,5 +143,8 @@ def finish(trainer: Trainer, last_eval: dict[str, Any]) -> dict[str, Any]:
         last_eval = round_eval or last_eval
     if not owed:
         meta = actor_meta(cfg, trainer.layout, trainer.agent, trainer.step, trainer.commit, trainer.polished)
+        if trainer.agent.actor_avg is not None:
+            save_actor(trainer.run_dir / "actor_avg.npz", trainer.agent, {**meta, "averaged": cfg.actor_average},
+                       averaged=True)
         save_actor(trainer.run_dir / "actor.npz", trainer.agent, meta)
     return last_eval

@@ -12,6 +12,7 @@ A run lives in one folder:
     checkpoint.prev.pt the checkpoint before it
     actor.npz          the final greedy actor, weights only (``deck_sim.policies.LearnedPolicy``)
     actor_best.npz     the actor of the best evaluation so far
+    actor_avg.npz      the final slow average of the actor (``actor_average``; absent when off)
 
 The trainer's collaborators each own one job: ``training.runlog`` the CSV and TensorBoard logs,
 ``training.checkpoints`` the checkpoint and the exact resume, ``training.final_fit`` the final cloning fit, the

@@ -152,6 +152,8 @@ def _refused(config: TrainConfig) -> list[str]:
         bad.append("n-step returns (n_step)")
     if config.hold_prob > 0.0:
         bad.append("held actions (hold_prob)")
+    if config.actor_average > 0.0:
+        bad.append("the averaged actor (actor_average)")
     return bad
 
 
