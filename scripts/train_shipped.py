@@ -276,6 +276,9 @@ def main() -> None:
     for item in args.set:
         k, _, v = item.partition("=")
         fields[k] = json.loads(v)
+    if "forecast" in fields:  # (the shipped MDDPG observes the paper's MPC forecast; another is a diagnostic)
+        raise SystemExit("--set forecast: the shipped MDDPG observes the MPC forecast; train other forecasts with "
+                         "deck-sim train or benchmarks/learning.py")
     algos = args.algos.split(",") if args.algos else list(SHIPPED_ALGOS)
     unknown = sorted(set(algos) - set(SHIPPED_ALGOS))
     if unknown:

@@ -70,8 +70,13 @@ def test_ctrl_c_stops_a_baseline_run_with_its_model_saved_and_resume_finishes_it
         model = DQN.load(str(out / "model.zip"))
         model.load_replay_buffer(str(out / "replay_buffer.pkl"))
         assert model.replay_buffer.size() == stopped["step"] - 1
+        saved = model.replay_buffer.observations[: stopped["step"] - 1].copy()
     done = train_baseline(algo, "deck1", 400, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
     assert not done["stopped"] and done["step"] == 400 and (out / "actor.npz").exists()
+    if algo == "dqn":  # the resumed run learnt on from the saved buffer: it holds those rows and the new ones
+        model.load_replay_buffer(str(out / "replay_buffer.pkl"))
+        assert model.replay_buffer.size() == 399
+        np.testing.assert_array_equal(model.replay_buffer.observations[: len(saved)], saved)
 
 
 def test_the_baseline_config_names_a_bad_field_before_any_run_folder_is_made(tmp_path):

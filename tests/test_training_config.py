@@ -51,6 +51,8 @@ def test_the_forecast_is_mddpgs_and_named_when_wrong():
     with pytest.raises(ConfigError, match="forecast: ddpg observes no forecast, got forecast = 'oracle'"):
         arm_config("reward-ddpg-with-oracle", "deck1", 1000, 0)
     assert TrainConfig.from_dict({"algo": "ddpg"}).predictor == "none"  # (a saved config without the field)
+    with pytest.raises(ConfigError, match="forecast: a teacher plans on the MPC forecast"):
+        arm_config("tuned-mddpg-with-oracle", "deck1", 1000, 0)
 
 
 def test_the_cloning_weight_falls_on_its_schedule_and_resumes_with_the_step():

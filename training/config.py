@@ -380,6 +380,9 @@ class TrainConfig:
             raise ConfigError(f"forecast: expected one of {names}, got {self.forecast!r} (DDPG is MDDPG without one)")
         if self.algo != "mddpg" and self.forecast != "mpc":
             raise ConfigError(f"forecast: {self.algo} observes no forecast, got forecast = {self.forecast!r}")
+        if self.forecast != "mpc" and self.regime != "reward":
+            raise ConfigError(f"forecast: a teacher plans on the MPC forecast, so a taught run observes it too; got "
+                              f"forecast = {self.forecast!r} in regime {self.regime!r}")
         if not 0.0 <= self.actor_average < 1.0:
             raise ConfigError(f"actor_average: must lie in [0, 1), got {self.actor_average!r}")
         if self.actor_average and self.polish_epochs:

@@ -272,6 +272,8 @@ class DDPGAgent:
         the online actor (``config.hidden``) or the final fit's own (``config.polish_hidden``); the critic is left
         as it is."""
         cfg = self.config
+        if getattr(self, "actor_avg", None) is not None:
+            raise ValueError("the averaged actor (actor_average) cannot follow a replaced actor")
         self.actor = self._new_actor(tuple(widths))
         self.actor_target = copy.deepcopy(self.actor)
         for p in self.actor_target.parameters():
