@@ -19,8 +19,8 @@ from training.loop import EVAL_FIELDS, PROGRESS_FIELDS, Trainer, load_checkpoint
 def test_a_run_observes_its_forecast_and_its_actor_asks_for_it(tmp_path):
     from deck_sim.policies import LearnedPolicy
 
-    t = Trainer(_short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10,
-                       forecast="constant_velocity"), tmp_path / "r", progress=False)
+    t = Trainer(_short(total_steps=20, demo_episodes=0, pretrain_updates=0, learning_starts=10, bc_weight=0.0,
+                       expert_relabel=False, forecast="constant_velocity"), tmp_path / "r", progress=False)
     t.train()
     policy = LearnedPolicy.load(tmp_path / "r" / "actor.npz")
     assert policy.predictor == "constant_velocity"
