@@ -145,8 +145,9 @@ class TrainConfig:
     forecast: str = "mpc"
     """The predictor whose forecast MDDPG observes (``deck_sim.control.prediction.PREDICTOR_NAMES`` but ``none``):
     ``mpc``, the paper's; ``constant_velocity`` or ``stationary``; ``oracle``, the movers' true future, simulated
-    ahead at every step (about nine times the cost of a deck step): a privileged observation, for asking whether
-    the learner can use a perfect forecast at all, never an agent to compare with the others. DDPG observes none."""
+    ahead at every step (far costlier than the MPC forecast: ``benchmarks/step_speed.py --predictor oracle``): a
+    privileged observation, for asking whether the learner can use a perfect forecast at all, never an agent to
+    compare with the others. DDPG observes none."""
     scene: str = "deck1"
     """Scene name or TOML path."""
     scene_overrides: dict[str, Any] = field(default_factory=dict)

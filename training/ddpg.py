@@ -89,9 +89,9 @@ class DDPGAgent:
             if not self.sets:
                 raise ValueError(f"actor_arch 'sets': the observation {sorted(self.shapes)} holds no obstacle set")
             self.norm.tie(list(set_indices(self.shapes, self.sets)[1].values()))
-        self.set_actor_widths(hidden)  # the actor, its target and its optimiser (initialised before the critic)
         self.actor_avg: nn.Module | None = None
         """The slow Polyak average of the actor (``config.actor_average``; None when off)."""
+        self.set_actor_widths(hidden)  # the actor, its target and its optimiser (initialised before the critic)
         if config.actor_average:
             self.actor_avg = copy.deepcopy(self.actor)
             for p in self.actor_avg.parameters():
@@ -272,7 +272,7 @@ class DDPGAgent:
         the online actor (``config.hidden``) or the final fit's own (``config.polish_hidden``); the critic is left
         as it is."""
         cfg = self.config
-        if getattr(self, "actor_avg", None) is not None:
+        if self.actor_avg is not None:
             raise ValueError("the averaged actor (actor_average) cannot follow a replaced actor")
         self.actor = self._new_actor(tuple(widths))
         self.actor_target = copy.deepcopy(self.actor)
