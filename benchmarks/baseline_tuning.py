@@ -52,7 +52,7 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "explore0.1-batch256": {"exploration_fraction": 0.1, "batch_size": 256},
     },
     # A2C (training.baseline_config.A2CConfig): rollout length, entropy bonus, learning rate, GAE, DDPG's 400 x 300
-    # layers
+    # layers, and the two fields that helped most at once
     "a2c": {
         "recipe": {},
         "nsteps5": {"n_steps": 5},
@@ -61,6 +61,7 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "lr3e-4": {"learning_rate": 3e-4},
         "gae0.95": {"gae_lambda": 0.95},
         "net400x300": {"net_arch": (400, 300)},
+        "lr3e-4-ent0.01": {"learning_rate": 3e-4, "ent_coef": 0.01},
     },
 }
 """The grid: per algorithm, each variant's fields over the recipe's (``recipe``: none, the recipe as it is)."""
