@@ -2,7 +2,8 @@
 hyperparameters over a reward-alone recipe, every variant with the same steps, seeds and held-out evaluations.
 
 Each variant is the recipe's ``[sb3]`` run (``training/recipes/<recipe>.toml``: its observation, normalisation,
-evaluation stream and, for A2C, its 8 environments) with the fields of ``VARIANTS`` over it, trained by
+evaluation stream and, for A2C, its 8 environments), every field the grid varies at its default (``grid_base``),
+with the fields of ``VARIANTS`` over it, trained by
 ``training.baselines.train_baseline`` in ``--out/<recipe>-<algo>-<variant>-seed<s>``. A folder with a finished run
 is read back, one with a model is resumed, so the grid can be run in pieces. Prints, per variant, the mean over
 seeds of the last and of the best periodic evaluation (``eval.csv``: the seed-500 stream, ``--eval-episodes``
@@ -23,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -33,6 +35,7 @@ from common import machine  # noqa: E402
 from learning import read_eval, train_runs  # noqa: E402
 
 from deck_sim.metrics import mean_interval  # noqa: E402
+from training.baseline_config import BASELINE_CONFIGS  # noqa: E402
 from training.config import ConfigError  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
@@ -64,7 +67,15 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
         "lr3e-4-ent0.01": {"learning_rate": 3e-4, "ent_coef": 0.01},
     },
 }
-"""The grid: per algorithm, each variant's fields over the recipe's (``recipe``: none, the recipe as it is)."""
+"""The grid: per algorithm, each variant's fields over ``grid_base`` (``recipe``: none, the base as it is)."""
+
+
+def grid_base(algo: str) -> dict[str, Any]:
+    """Every field that ``algo``'s grid varies, at its config's default (``training.baseline_config``): the grid
+    starts from the untuned configuration even where the recipe has since taken a winner's fields, so that its runs
+    and its report stay the same; the recipe's other fields (budget, evaluations, A2C's environments) stay."""
+    defaults = {f.name: f.default for f in dataclasses.fields(BASELINE_CONFIGS[algo])}
+    return {name: defaults[name] for fields in VARIANTS[algo].values() for name in fields}
 
 
 def run_folder(out: Path, recipe: str, algo: str, variant: str, seed: int) -> Path:
@@ -113,7 +124,7 @@ def main() -> None:
                 run = run_folder(out, recipe.name, algo, variant, seed)
                 if not (run / "actor.npz").exists() and not args.no_train:
                     cfg = recipe.run(algo, seed, args.steps, eval_every=args.eval_every,
-                                     eval_episodes=args.eval_episodes, **fields)
+                                     eval_episodes=args.eval_episodes, **{**grid_base(algo), **fields})
                     to_train.append((f"{algo} {variant}", seed, run, cfg, (run / "model.zip").exists()))
     train_runs(to_train, args.jobs)
     report: dict[str, dict[str, Any]] = {}

@@ -47,3 +47,22 @@ def test_an_unknown_variant_or_a_recipe_without_baselines_is_refused(tmp_path):
         done = subprocess.run([sys.executable, "benchmarks/baseline_tuning.py", "--no-train", "--out", str(tmp_path),
                                *args], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=300)
         assert done.returncode != 0 and message in done.stderr, done.stderr
+
+
+def test_the_grid_starts_from_the_untuned_configuration_whatever_the_recipe_has_taken_since():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import baseline_tuning
+
+    from training.baseline_config import A2CConfig, DQNConfig
+    from training.recipes import load_recipe
+
+    recipe = load_recipe("deck1-reward")
+    tuned = recipe.run("dqn", 0, 300_000)
+    base = recipe.run("dqn", 0, 300_000, **baseline_tuning.grid_base("dqn"))
+    assert tuned["batch_size"] != DQNConfig().batch_size  # the recipe took a winner's fields ...
+    for name in ("batch_size", "exploration_fraction", "learning_rate", "net_arch", "num_envs"):
+        assert base[name] == getattr(DQNConfig(), name), name  # ... the grid's base did not
+    a2c = recipe.run("a2c", 0, 300_000, **baseline_tuning.grid_base("a2c"))
+    assert a2c["num_envs"] == 8  # a field the A2C grid does not vary stays the recipe's
+    assert (a2c["learning_rate"], a2c["ent_coef"]) == (A2CConfig().learning_rate, A2CConfig().ent_coef)
+    assert a2c["eval_episodes"] == tuned["eval_episodes"] == 100
