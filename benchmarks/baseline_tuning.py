@@ -24,7 +24,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import json  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -74,8 +73,8 @@ def grid_base(algo: str) -> dict[str, Any]:
     """Every field that ``algo``'s grid varies, at its config's default (``training.baseline_config``): the grid
     starts from the untuned configuration even where the recipe has since taken a winner's fields, so that its runs
     and its report stay the same; the recipe's other fields (budget, evaluations, A2C's environments) stay."""
-    defaults = {f.name: f.default for f in dataclasses.fields(BASELINE_CONFIGS[algo])}
-    return {name: defaults[name] for fields in VARIANTS[algo].values() for name in fields}
+    default = BASELINE_CONFIGS[algo]()
+    return {name: getattr(default, name) for fields in VARIANTS[algo].values() for name in fields}
 
 
 def run_folder(out: Path, recipe: str, algo: str, variant: str, seed: int) -> Path:
