@@ -46,11 +46,16 @@ AGENTS: dict[str, AgentInfo] = {
     for a in (
         AgentInfo("mddpg", "learned", "the paper's MDDPG: DDPG on the observation and the MPC forecast", "ddpg"),
         AgentInfo("ddpg", "learned", "the same DDPG without prediction", "ddpg"),
-        AgentInfo("dqn", "learned", "DQN over 17 discrete displacements (stable-baselines3)", "sb3"),
-        AgentInfo("a2c", "learned", "A2C (stable-baselines3)", "sb3"),
+        AgentInfo("dqn", "learned", "DQN over 17 discrete displacements (stable-baselines3), a short run at the "
+                  "library's defaults", "sb3"),
+        AgentInfo("a2c", "learned", "A2C (stable-baselines3), a short run at the library's defaults", "sb3"),
         AgentInfo("mddpg-reward", "learned", "MDDPG learnt from the reward alone (the paper's protocol)", "ddpg",
                   algo="mddpg", recipe="reward"),
         AgentInfo("ddpg-reward", "learned", "DDPG learnt from the reward alone", "ddpg", algo="ddpg", recipe="reward"),
+        AgentInfo("dqn-reward", "learned", "DQN at DDPG's budget with its own tuned fields (the paper's baseline)",
+                  "sb3", algo="dqn", recipe="reward"),
+        AgentInfo("a2c-reward", "learned", "A2C at DDPG's budget with its own tuned fields (the paper's baseline)",
+                  "sb3", algo="a2c", recipe="reward"),
         AgentInfo("mddpg-planner", "learned", "MDDPG taught by the scripted planner on its own observation", "ddpg",
                   algo="mddpg", recipe="planner"),
         AgentInfo("ddpg-planner", "learned", "DDPG taught by the scripted planner on its own observation", "ddpg",

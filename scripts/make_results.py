@@ -117,8 +117,10 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
                 steps = f"{fig['train_steps']:,}" if "train_steps" in fig else "?"
                 wall = f"{fig['train_wall_s'] / 60:.0f} min" if "train_wall_s" in fig else "?"
                 seeds = fig.get("seeds") or [fig.get("seed", "?")]
+                trained = fig.get("trained_seeds") or seeds
                 runs = (f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; the mean of their actors' actions)"
-                        if len(seeds) > 1 else f"1 (seed {seeds[0]})")
+                        if len(seeds) > 1 else f"1 (seed {seeds[0]})" if len(trained) <= 1 else
+                        f"1 (seed {seeds[0]}, the best periodic evaluation of seeds {', '.join(map(str, trained))})")
                 learnt = shipped_regime(scene, agent) or "not recorded"
                 lines.append(f"| {agent} | {scene} | {learnt} | {runs} | {steps} | {wall} | {episodes} |")
             else:

@@ -14,9 +14,14 @@ For each scene and agent (``--algos``, default every learned agent of ``deck_sim
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
   ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
   (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
+  ``dqn-reward`` and ``a2c-reward``: the same with the reward-alone recipe's ``[sb3]`` table (DDPG's budget and
+  seeds, each algorithm's tuned fields), in ``--out/<scene>-reward-<algo>-seed<seed>``. A mean of several DQN
+  actors' discrete displacements is not DQN, so with several seeds a stable-baselines3 agent ships one run: the
+  one whose best periodic evaluation (seed-500 episodes, the stream that already picks each run's actor) is
+  highest (``best_run``); every seed's logs are shipped beside it.
 
 MDDPG and DDPG of a scene train for the same number of environment steps; DQN and A2C for the recipe's
-``[sb3]`` steps. ``--steps`` sets one budget for every agent.
+``[sb3]`` steps (in the reward-alone recipes, the same as MDDPG's). ``--steps`` sets one budget for every agent.
 
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 shipped actor of each run (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the
@@ -25,7 +30,7 @@ one with the best periodic held-out evaluation on the seed-500 stream) is copied
 further held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a
 training, demonstration or selection episode). The figures go to ``deck_sim/trained/results.json``
 (``{scene: {algo: figures}}``) and ``deck_sim/trained/README.md``, written by this script, never by hand, as is
-the table between the ``README_MARKERS`` of the project's README; the runs' held-out evaluation logs and configs
+the table between the ``README_MARKERS`` of the project's README; the runs' periodic evaluation logs and configs
 go to ``deck_sim/trained/logs/<scene>_<algo>/`` (``ship_logs``; the learning curves of
 ``docs/results.md``), and the training time recorded is the sum of the runs' wall-clock times. An agent
 already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
@@ -86,6 +91,7 @@ DDPG_ALGOS = names(trainer="ddpg")
 """The agents trained by ``training.ddpg`` (MDDPG, DDPG); the others by stable-baselines3."""
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C",
           "mddpg-reward": "MDDPG (reward alone)", "ddpg-reward": "DDPG (reward alone, no prediction)",
+          "dqn-reward": "DQN (reward alone, tuned)", "a2c-reward": "A2C (reward alone, tuned)",
           "mddpg-planner": "MDDPG (planner on its observation)",
           "ddpg-planner": "DDPG (planner on its observation, no prediction)"}
 PROJECT_README = Path(__file__).resolve().parents[1] / "README.md"
@@ -155,6 +161,20 @@ def ship(runs: list[Path], dest: Path) -> None:
         raise SystemExit(f"{dest}: the runs {[str(r) for r in runs]} are not one recipe and budget "
                          f"(recipe, steps, agent, scene: {sorted(runs_of, key=str)}); train them again or remove one")
     EnsemblePolicy(members, source=str(dest)).save(dest)
+
+
+def best_run(runs: list[Path]) -> Path:
+    """The run whose best periodic evaluation (``eval.csv``'s highest ``success``, seed-500 episodes) is highest;
+    on a tie the first of ``runs``. Raises ``SystemExit`` naming a run without evaluations."""
+    best: tuple[float, int] | None = None
+    for i, run in enumerate(runs):
+        with open(run / "eval.csv", newline="") as f:
+            rates = [float(row["success"]) for row in csv.DictReader(f)]
+        if not rates:
+            raise SystemExit(f"{run}: no periodic evaluation in eval.csv to choose the shipped run by")
+        if best is None or max(rates) > best[0]:
+            best = (max(rates), i)
+    return runs[best[1]]
 
 
 def run_folder(out: Path, scene: str, algo: str, seed: int) -> Path:
@@ -253,8 +273,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None,
                         help="training steps for every agent (default: the scene's recipe)")
     parser.add_argument("--seeds", default=None,
-                        help="training seeds, comma-separated (default: the scene's recipe); several seeds ship "
-                             "the mean action of their actors (MDDPG and DDPG only)")
+                        help="training seeds, comma-separated (default: the scene's recipe); with several seeds "
+                             "MDDPG and DDPG ship the mean action of their actors, DQN and A2C the run with the best "
+                             "periodic evaluation")
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders, <out>/<scene>-<algo>-seed<seed>")
     parser.add_argument("--episodes-per-run", type=int, default=100,
@@ -289,9 +310,6 @@ def main() -> None:
         raise SystemExit(f"--seeds {args.seeds!r}: expected comma-separated integers") from None
     if seeds_given is not None and len(set(seeds_given)) < len(seeds_given):
         raise SystemExit(f"--seeds {args.seeds!r}: each seed once")
-    if seeds_given is not None and len(seeds_given) > 1 and {"dqn", "a2c"} & set(algos):
-        raise SystemExit("--seeds: several seeds make an ensemble of MDDPG or DDPG actors; DQN and A2C ship one run "
-                         "(pass --algos mddpg,ddpg)")
     if seeds_given is not None and args.evaluate_only:
         raise SystemExit("--seeds with --evaluate-only: the shipped files' own seeds are measured (drop --seeds)")
     TRAINED_DIR.mkdir(exist_ok=True)
@@ -316,7 +334,7 @@ def main() -> None:
             seeds = seeds_given or default_seeds(scene, algo)
             runs = [run_folder(out, scene, algo, seed) for seed in seeds]
             todo = sum(not (r / "actor.npz").exists() for r in runs)
-            cost = 0 if args.evaluate_only or not todo else 1 if algo in ("dqn", "a2c") else 2
+            cost = 0 if args.evaluate_only or not todo else 1 if algo not in DDPG_ALGOS else 2
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
     for _, _, scene, algo, seeds, runs, dest in sorted(work):
         steps = args.steps if args.steps is not None else default_steps(scene, algo)
@@ -326,25 +344,32 @@ def main() -> None:
         else:
             for seed, run in zip(seeds, runs, strict=True):
                 train(run, scene, algo, steps, seed, fields)
-                if algo in DDPG_ALGOS:  # each seed on docs/results.md's episodes, shipped beside the actor
-                    held_out_record(run, args.episodes_per_run)
-            ship(runs, dest)
+                held_out_record(run, args.episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
+            if algo in DDPG_ALGOS:
+                ship(runs, dest)
+            else:  # one run, the others' logs beside it
+                chosen = runs.index(best_run(runs))
+                ship([runs[chosen]], dest)
+                order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
+                runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)
             ship_logs(runs, seeds, scene, algo, args.episodes_per_run)
         t0 = time.perf_counter()
         summary = held_out(dest, scene, args.episodes)
         meta = load_actor(dest).meta
         seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
+        # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
+        logs = member_logs(scene, algo)
+        trained = sorted({int(json.loads((d / "config.json").read_text())["seed"]) for d in logs} | set(seeds))
         # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
         # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
-        logs = member_logs(scene, algo)
-        if len(logs) != len(seeds):
+        if len(logs) != len(trained):
             logs = [r for r in runs if (r / "eval.csv").exists()]
-        if len(logs) == len(seeds):  # every run's log, or the sum would leave a run out
+        if len(logs) == len(trained):  # every run's log, or the sum would leave a run out
             wall = sum(_train_wall(d) for d in logs)
         else:
             wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
-            print(f"{scene} {algo}: {len(logs)} training logs for {len(seeds)} runs; training time kept as recorded "
-                  f"({wall:.0f} s)", flush=True)
+            print(f"{scene} {algo}: {len(logs)} training logs for {len(trained)} runs; training time kept as "
+                  f"recorded ({wall:.0f} s)", flush=True)
         record = {
             "algo": algo,
             "episodes": args.episodes,
@@ -357,14 +382,14 @@ def main() -> None:
             "path_ratio": summary["path_ratio"],
             "turning_angle_deg": summary["turning_angle_deg"],
             "predictor": str(meta.get("predictor", "none")),
-            "recipe": (f"training/recipes/{recipe_name(algo, scene)}.toml" if algo in DDPG_ALGOS
-                       else f"stable-baselines3 {algo}"),
+            "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
             "train_steps": int(meta["config"]["total_steps"]),
             "selected_at_step": int(meta["trained_steps"]),
             "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
             "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
             "train_wall_s": wall,
             "seeds": list(seeds),
+            "trained_seeds": trained,  # (a stable-baselines3 agent ships the best of these runs)
             "file_kib": dest.stat().st_size / 1024,
             "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
         }
@@ -426,6 +451,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         if meta.get("members"):
             actor = f"mean action of {len(meta['members'])} actors, each {actor}"
         seeds = ", ".join(map(str, r.get("seeds", [])))
+        if len(r.get("trained_seeds", [])) > len(r.get("seeds", [])):
+            actor += f", of the seed whose best evaluation was highest of {', '.join(map(str, r['trained_seeds']))}"
         lines.append(
             f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {recipe} | {seeds} | {actor} | "
             f"{r['episodes']} | "
@@ -437,9 +464,12 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def seeds_cell(seeds: list[int]) -> str:
-    """How many runs stand behind a shipped agent, and their seeds: ``1 (seed 0)``, ``2 (seeds 0, 1; mean action)``."""
+def seeds_cell(seeds: list[int], trained: list[int] | None = None) -> str:
+    """How many runs stand behind a shipped agent, and their seeds: ``1 (seed 0)``, ``2 (seeds 0, 1; mean action)``,
+    or for one run chosen from several trained (``trained``) ``1 (seed 1, the best of seeds 0, 1, 2)``."""
     if len(seeds) == 1:
+        if trained and len(trained) > 1:
+            return f"1 (seed {seeds[0]}, the best of seeds {', '.join(map(str, trained))})"
         return f"1 (seed {seeds[0]})"
     return f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; mean action)"
 
@@ -462,7 +492,7 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
-        runs = seeds_cell(r.get("seeds", []))
+        runs = seeds_cell(r.get("seeds", []), r.get("trained_seeds"))
         lines.append(
             f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {runs} | "
             f"{100 * r['success']:.1f} % | "

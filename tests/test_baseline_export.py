@@ -180,9 +180,9 @@ def test_project_readme_table_matches_results_json():
         cells = (c.strip() for c in line.strip("|").split("|"))
         scene, label, learnt, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
-        assert learnt == ("reward" if labels[label] in ("dqn", "a2c") else AGENTS[labels[label]].recipe
-                          or "oracle-teacher")
-        assert runs == script.seeds_cell(record["seeds"]), (scene, label)
+        agent = AGENTS[labels[label]]
+        assert learnt == ("reward" if agent.trainer == "sb3" else agent.recipe or "oracle-teacher")
+        assert runs == script.seeds_cell(record["seeds"], record.get("trained_seeds")), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
             assert cell == f"{100 * record[key]:.1f} %", (scene, label, key)
@@ -206,6 +206,23 @@ def test_the_shipped_policies_page_is_the_scripts_own_output(tmp_path):
     legacy.write_text(json.dumps({"deck1": {"dqn": {"success": 0.5, "seed": 4}}}))
     assert script.read_report(legacy) == {"deck1": {"dqn": {"success": 0.5, "seeds": [4]}}}
     assert script.seeds_cell([4]) == "1 (seed 4)" and script.seeds_cell([0, 1]) == "2 (seeds 0, 1; mean action)"
+    assert script.seeds_cell([1], [0, 1, 2]) == "1 (seed 1, the best of seeds 0, 1, 2)"
+
+
+def test_a_stable_baselines3_agent_ships_the_run_with_the_best_periodic_evaluation(tmp_path):
+    script = _train_shipped()
+    runs = []
+    for seed, rates in enumerate([(0.2, 0.6, 0.5), (0.7, 0.4), (0.3, 0.7)]):  # seed 1 first reaches the highest
+        run = tmp_path / f"seed{seed}"
+        run.mkdir()
+        rows = "".join(f"{50_000 * (k + 1)},{k},100,{r}\n" for k, r in enumerate(rates))
+        (run / "eval.csv").write_text("step,wall_s,episodes,success\n" + rows)
+        runs.append(run)
+    assert script.best_run(runs) == runs[1]  # a tie goes to the first
+    assert script.best_run([runs[0], runs[2]]) == runs[2]
+    (runs[0] / "eval.csv").write_text("step,wall_s,episodes,success\n")
+    with pytest.raises(SystemExit, match="no periodic evaluation"):
+        script.best_run(runs)
 
 
 def test_project_table_is_rewritten_between_its_markers_and_nowhere_else(tmp_path, capsys):
