@@ -47,8 +47,8 @@ AGENTS: dict[str, AgentInfo] = {
         AgentInfo("mddpg", "learned", "the paper's MDDPG: DDPG on the observation and the MPC forecast", "ddpg"),
         AgentInfo("ddpg", "learned", "the same DDPG without prediction", "ddpg"),
         AgentInfo("dqn", "learned", "DQN over 17 discrete displacements (stable-baselines3), a short run at the "
-                  "library's defaults", "sb3"),
-        AgentInfo("a2c", "learned", "A2C (stable-baselines3), a short run at the library's defaults", "sb3"),
+                  "default fields", "sb3"),
+        AgentInfo("a2c", "learned", "A2C (stable-baselines3), a short run at the default fields", "sb3"),
         AgentInfo("mddpg-reward", "learned", "MDDPG learnt from the reward alone (the paper's protocol)", "ddpg",
                   algo="mddpg", recipe="reward"),
         AgentInfo("ddpg-reward", "learned", "DDPG learnt from the reward alone", "ddpg", algo="ddpg", recipe="reward"),

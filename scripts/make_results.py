@@ -33,6 +33,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from deck_sim.agents import AGENTS as AGENT_INFO  # noqa: E402
 from deck_sim.agents import LEARNED, recipe_name, training_algo  # noqa: E402
 from deck_sim.evaluation import (  # noqa: E402
     PAPER,
@@ -54,8 +55,8 @@ from deck_sim.rollout import git_commit  # noqa: E402
 from training.recipes import load_recipe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-AGENTS = ("mddpg-reward,ddpg-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted-observed,"
-          "scripted,scripted-body")
+AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
+          "mpc,scripted-observed,scripted,scripted-body")
 
 
 def training_figures(scene: str, agent: str) -> dict | None:
@@ -391,7 +392,9 @@ def main() -> None:
                 stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
                 shown = run.relative_to(ROOT) if run.is_absolute() and run.is_relative_to(ROOT) else run
                 others = sorted(d.name for d in run.glob("seed*") if (d / "eval.csv").exists())
-                also = (f" (seed {c.get('seed', 0)}'s run; the shipped ensemble's other runs: "
+                kin = ("the seeds it was chosen from" if AGENT_INFO[agent].trainer == "sb3"
+                       else "the shipped ensemble's other runs")
+                also = (f" (seed {c.get('seed', 0)}'s run; {kin}: "
                         f"{', '.join(f'`{o}/eval.csv`' for o in others)})") if others else ""
                 how.append(f"{agent}: `{shown}/eval.csv`{also}, {'/'.join(episodes)} episodes of {stream} per point")
             curve_lines.append(
@@ -429,7 +432,10 @@ def main() -> None:
         "`mddpg-reward` and `ddpg-reward`, MDDPG and DDPG without prediction learnt from the reward alone as in the "
         "paper; `mddpg-planner` and `ddpg-planner`, the same agents taught by the scripted planner on their own "
         "observation; `mddpg` and `ddpg`, taught by the full-knowledge planner (the column `learnt from` says so); "
-        "DQN and A2C; `scripted-observed`, the planner on the observation alone (the `planner` regime's teacher); "
+        "`dqn-reward` and `a2c-reward`, DQN and A2C learnt from the reward alone at DDPG's budget with their own "
+        "tuned fields (one run each, the seed with the best periodic evaluation); `dqn` and `a2c`, short runs at "
+        "the default fields; `scripted-observed`, the planner on the observation alone (the `planner` regime's "
+        "teacher); "
         "the classical references of `deck_sim/control/planners.py` "
         "(APF, A* with replanning, CasADi MPC; they plan around the MPC predictor's forecast, the one MDDPG sees) "
         "and `scripted`, the full-knowledge planner that sees the movers' true future (the solvability ceiling); "

@@ -36,9 +36,9 @@ go to ``deck_sim/trained/logs/<scene>_<algo>/`` (``ship_logs``; the learning cur
 already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
 again without training).
 
-Order: agents whose runs are finished first, then the cheap SB3 runs, then the DDPG runs, so the files land
-incrementally; each is shipped as soon as it is measured. Several copies may run at once on disjoint work
-(``results.json`` is updated under a file lock).
+Order: agents whose runs are finished first, then by the environment steps still to train (a DDPG step counted
+twice), so the files land incrementally; each is shipped as soon as it is measured. Several copies may run at once
+on disjoint work (``results.json`` is updated under a file lock).
 
 Long work: run it in the background (``nohup nice -n 10 python scripts/train_shipped.py > train.log 2>&1 &``),
 never in tests.
@@ -112,7 +112,8 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str, h
     the first ``held_out_episodes`` of ``docs/results.md``'s episodes (``training.heldout``) to ``deck_sim/trained/logs/
     <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
     learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
-    further seeds) in ``seed<seed>/`` below it (``member_logs``)."""
+    further seeds, or the seeds a stable-baselines3 agent was not chosen from) in ``seed<seed>/`` below it
+    (``member_logs``)."""
     logs = shipped_log_dir(algo, scene)
     for old in logs.glob("seed*"):  # nothing of an earlier shipped run may stay beside the new logs
         if old.is_symlink() or old.is_file():
@@ -165,7 +166,17 @@ def ship(runs: list[Path], dest: Path) -> None:
 
 def best_run(runs: list[Path]) -> Path:
     """The run whose best periodic evaluation (``eval.csv``'s highest ``success``, seed-500 episodes) is highest;
-    on a tie the first of ``runs``. Raises ``SystemExit`` naming a run without evaluations."""
+    on a tie the first of ``runs``. The runs must differ in their seed alone (a folder finished by another command
+    with other ``--steps`` or fields is refused, not compared). Raises ``SystemExit`` naming a run without
+    evaluations or the fields in which two runs differ."""
+    configs = []
+    for run in runs:
+        config = json.loads((run / "config.json").read_text(encoding="utf-8")) if (run / "config.json").exists() else {}
+        configs.append({k: v for k, v in config.items() if k != "seed"})
+    differ = sorted({k for c in configs[1:] for k in c.keys() | configs[0].keys() if c.get(k) != configs[0].get(k)})
+    if differ:
+        raise SystemExit(f"the runs {[str(r) for r in runs]} differ in more than their seed ({', '.join(differ)}); "
+                         "train them again or remove one")
     best: tuple[float, int] | None = None
     for i, run in enumerate(runs):
         with open(run / "eval.csv", newline="") as f:
@@ -211,13 +222,15 @@ def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[
 
         resume = (run / "checkpoint.pt").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
-        Trainer(plan, run, resume=resume, progress=False).train()
+        summary = Trainer(plan, run, resume=resume, progress=False).train()
     else:
         from training.baselines import train_baseline
 
         resume = (run / "model.zip").exists()
         print(f"training {algo} on {scene} ({steps} steps) in {run}" + (" (resuming)" if resume else ""), flush=True)
-        train_baseline(**plan, out=run, resume=resume, progress=False)
+        summary = train_baseline(**plan, out=run, resume=resume, progress=False)
+    if summary.get("stopped"):  # interrupted: nothing may be shipped or measured from an unfinished run
+        raise SystemExit(f"{run}: stopped at step {summary.get('step', '?')}; run the same command again to resume")
 
 
 @contextlib.contextmanager
@@ -279,8 +292,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=200, help="held-out episodes per agent (seed 1000)")
     parser.add_argument("--out", default="runs/learning", help="run folders, <out>/<scene>-<algo>-seed<seed>")
     parser.add_argument("--episodes-per-run", type=int, default=100,
-                        help="episodes of docs/results.md on which each MDDPG or DDPG run's actor is measured "
-                             "(training.heldout; shipped as heldout.json beside the actor's logs)")
+                        help="episodes of docs/results.md on which each run's actor is measured "
+                             "(training.heldout; shipped as heldout_<N>.json beside the actor's logs)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
     mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")
@@ -334,7 +347,9 @@ def main() -> None:
             seeds = seeds_given or default_seeds(scene, algo)
             runs = [run_folder(out, scene, algo, seed) for seed in seeds]
             todo = sum(not (r / "actor.npz").exists() for r in runs)
-            cost = 0 if args.evaluate_only or not todo else 1 if algo not in DDPG_ALGOS else 2
+            steps = args.steps if args.steps is not None else default_steps(scene, algo)
+            # environment steps still to train, a DDPG step counted as two (its updates cost as much as the step)
+            cost = 0 if args.evaluate_only else todo * steps * (2 if algo in DDPG_ALGOS else 1)
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
     for _, _, scene, algo, seeds, runs, dest in sorted(work):
         steps = args.steps if args.steps is not None else default_steps(scene, algo)
@@ -359,7 +374,7 @@ def main() -> None:
         seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
         # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
         logs = member_logs(scene, algo)
-        trained = sorted({int(json.loads((d / "config.json").read_text())["seed"]) for d in logs} | set(seeds))
+        trained = sorted({s for d in logs if (s := _log_seed(d)) is not None} | set(seeds))
         # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
         # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
         if len(logs) != len(trained):
@@ -402,6 +417,14 @@ def main() -> None:
         )
 
 
+def _log_seed(folder: Path) -> int | None:
+    """The training seed in ``folder/config.json``, None if the file or its seed is missing or unreadable."""
+    try:
+        return int(json.loads((folder / "config.json").read_text(encoding="utf-8"))["seed"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _train_wall(run: Path) -> float:
     with open(run / "eval.csv", newline="") as f:
         rows = list(csv.DictReader(f))
@@ -427,7 +450,9 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "agent, recipe, seeds and budget without the MPC prediction), one run per training seed; with several seeds",
         "the file holds each run's actor and acts by the mean of their actions (`deck_sim.policies.EnsemblePolicy`).",
         "DQN and A2C are stable-baselines3 runs",
-        "(`training.baselines`) exported to numpy. A run that ends with the cloning fit (`polish`) ships its final,",
+        "(`training.baselines`) exported to numpy; with several seeds they ship one run, the seed whose best periodic",
+        "evaluation is highest (a mean of DQN's discrete displacements would not be DQN). A run that ends with the",
+        "cloning fit (`polish`) ships its final,",
         "fitted actor (`training.loop.shipped_actor`); any other run the actor of its best periodic evaluation",
         "(seed-500 episodes): the column `actor` says which. Held-out:",
         "consecutive episodes of",

@@ -218,8 +218,13 @@ def test_a_stable_baselines3_agent_ships_the_run_with_the_best_periodic_evaluati
         rows = "".join(f"{50_000 * (k + 1)},{k},100,{r}\n" for k, r in enumerate(rates))
         (run / "eval.csv").write_text("step,wall_s,episodes,success\n" + rows)
         runs.append(run)
+        (run / "config.json").write_text(json.dumps({"algo": "dqn", "total_steps": 1000, "seed": seed}))
     assert script.best_run(runs) == runs[1]  # a tie goes to the first
     assert script.best_run([runs[0], runs[2]]) == runs[2]
+    (runs[2] / "config.json").write_text(json.dumps({"algo": "dqn", "total_steps": 500, "seed": 2}))
+    with pytest.raises(SystemExit, match="differ in more than their seed \\(total_steps\\)"):
+        script.best_run(runs)  # another budget's run is refused, not compared
+    (runs[2] / "config.json").write_text(json.dumps({"algo": "dqn", "total_steps": 1000, "seed": 2}))
     (runs[0] / "eval.csv").write_text("step,wall_s,episodes,success\n")
     with pytest.raises(SystemExit, match="no periodic evaluation"):
         script.best_run(runs)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from deck_sim.agents import recipe_name, training_algo
+from deck_sim.agents import AGENTS, recipe_name, training_algo
 from deck_sim.cli import main
 from deck_sim.policies import EnsemblePolicy, load_actor, shipped_policy_path
 from training.config import ConfigError, TrainConfig
@@ -79,7 +79,8 @@ def test_the_shipped_mddpg_and_ddpg_are_runs_of_their_recipe(scene):
 @pytest.mark.parametrize(
     ("scene", "algo", "seed"),
     [("deck1", "mddpg", 1), ("deck2", "ddpg", 0), ("square", "dqn", 0), ("deck1", "mddpg-reward", 2),
-     ("deck2", "ddpg-reward", 0), ("deck1", "ddpg-planner", 1)],
+     ("deck2", "ddpg-reward", 0), ("deck1", "ddpg-planner", 1), ("deck1", "dqn-reward", 1),
+     ("square", "a2c-reward", 2)],
 )
 def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
     recipe = recipe_name(algo, scene)
@@ -98,8 +99,12 @@ def test_train_recipe_is_what_train_shipped_runs(scene, algo, seed, capsys):
         from training.baseline_config import baseline_config
 
         fields = {k: v for k, v in planned.items() if k not in ("algo", "steps")}
-        assert printed == baseline_config(algo, **fields, total_steps=planned["steps"]).to_dict()
-        assert printed["total_steps"] == load_recipe(scene).steps(algo)
+        assert printed == baseline_config(training_algo(algo), **fields, total_steps=planned["steps"]).to_dict()
+        assert printed["total_steps"] == load_recipe(recipe).steps(training_algo(algo))
+        if AGENTS[algo].recipe == "reward":  # DDPG's budget, with the fields tuned for the algorithm
+            assert printed["total_steps"] == load_recipe(recipe).steps("mddpg")
+            assert load_recipe(recipe).baseline_kwargs(training_algo(algo)).items() <= {
+                **planned, **printed}.items()
 
 
 def test_train_options_apply_over_the_recipe_and_contradictions_are_refused(capsys):

@@ -52,7 +52,8 @@ log = logging.getLogger(__name__)
 
 HEADINGS = 8
 SPEEDS = (0.5, 1.0)
-BASELINES = agents.names(trainer="sb3")
+BASELINES = tuple(a for a in agents.ALGOS if agents.AGENTS[a].trainer == "sb3")
+"""The stable-baselines3 algorithms (``dqn``, ``a2c``)."""
 RESUMABLE_BASELINE_CHANGES = ("total_steps", "eval_every", "eval_episodes", "log_every")
 """Config fields a resumed DQN or A2C run may change: a longer run, and how often and on how many episodes it is
 evaluated and logged."""
