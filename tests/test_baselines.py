@@ -3,6 +3,9 @@ config (``DQNConfig``, ``A2CConfig``) is checked before a run starts and saved w
 
 from __future__ import annotations
 
+import csv
+import json
+
 import numpy as np
 import pytest
 from training_runs import csv_rows
@@ -71,8 +74,13 @@ def test_ctrl_c_stops_a_baseline_run_with_its_model_saved_and_resume_finishes_it
         model.load_replay_buffer(str(out / "replay_buffer.pkl"))
         assert model.replay_buffer.size() == stopped["step"] - 1
         saved = model.replay_buffer.observations[: stopped["step"] - 1].copy()
+    clock = json.loads((out / "clock.json").read_text())  # the stopped run's clock, counted on when resumed
+    assert clock["step"] == stopped["step"] and clock["wall_s"] > 0
     done = train_baseline(algo, "deck1", 400, 0, out, resume=True, progress=False, eval_every=0, eval_episodes=1)
     assert not done["stopped"] and done["step"] == 400 and (out / "actor.npz").exists()
+    with open(out / "eval.csv", newline="") as f:
+        final = float(list(csv.DictReader(f))[-1]["wall_s"])  # (no periodic evaluation before it)
+    assert clock["wall_s"] < final <= clock["wall_s"] + done["wall_s"]
     if algo == "dqn":  # the resumed run learnt on from the saved buffer: it holds those rows and the new ones
         model.load_replay_buffer(str(out / "replay_buffer.pkl"))
         assert model.replay_buffer.size() == 399
@@ -116,6 +124,19 @@ def test_the_baseline_config_names_a_bad_field_before_any_run_folder_is_made(tmp
 
 
 @pytest.mark.slow
+def test_a_resumed_baseline_runs_clock_starts_where_its_model_was_saved(tmp_path):
+    from training.baselines import CLOCK_FILE, wall_at_save
+
+    rows = [{"step": "50", "wall_s": "10.0"}]
+    assert wall_at_save(tmp_path, 80, rows) == 10.0  # no clock: the last evaluation's
+    assert wall_at_save(tmp_path, 80, []) == 0.0
+    (tmp_path / CLOCK_FILE).write_text(json.dumps({"step": 80, "wall_s": 17.5}))
+    assert wall_at_save(tmp_path, 80, rows) == 17.5
+    assert wall_at_save(tmp_path, 96, rows) == 10.0  # a clock of another step is not this model's
+    (tmp_path / CLOCK_FILE).write_text("{not json")
+    assert wall_at_save(tmp_path, 80, rows) == 10.0
+
+
 def test_a_baseline_run_saves_its_config_and_resumes_a_run_of_the_step_count_format(tmp_path):
     """``config.json`` holds every field of the run's config; a run folder whose ``config.json`` gives the run's
     length as ``steps`` (and its SB3 keywords under ``sb3``) resumes, its actor's record giving ``total_steps``."""

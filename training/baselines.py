@@ -8,7 +8,8 @@ reach (17 actions). A2C acts on the continuous (x, y) action like DDPG.
 Every setting of a run is a field of its config (``DQNConfig`` or ``A2CConfig``, ``training.baseline_config``). A
 run folder holds that config as ``config.json``, ``progress.csv`` and ``eval.csv`` with the columns of the DDPG
 runs (where SB3 has them), TensorBoard logs under ``tb/``, and ``model.zip`` with ``vecnormalize.pkl`` (SB3's own
-formats, which pickle: load only runs you trust). ``--resume`` loads them and goes on for the remaining steps with
+formats, which pickle: load only runs you trust) and ``clock.json`` (the step and wall-clock time at that save, from
+which a resumed run's clock goes on). ``--resume`` loads them and goes on for the remaining steps with
 the saved config (``resume_config``: only the budget and the evaluation and logging settings may change); unlike
 the DDPG trainer it is not bit-exact (SB3 does not restore the environments' episodes).
 
@@ -319,7 +320,7 @@ def train_baseline(
                 "below that"
             )
         earlier = _read_rows(out / "eval.csv")
-        wall_before = float(earlier[-1]["wall_s"]) if earlier else 0.0  # eval.csv's clock spans every process
+        wall_before = wall_at_save(out, done_steps, earlier)  # eval.csv's clock spans every process
         best_success = max((float(r["success"]) for r in earlier), default=-1.0)
         with open(out / "eval.csv", "w", newline="") as f:  # rewritten with EVAL_FIELDS, whatever columns it had
             w = csv.DictWriter(f, fieldnames=EVAL_FIELDS, restval="")
@@ -450,6 +451,10 @@ def train_baseline(
             os.replace(tmp_buffer, buffer_path)
         os.replace(tmp_model, model_path)
         os.replace(tmp_norm, norm_path)
+        clock = {"step": int(model.num_timesteps), "wall_s": wall_before + time.perf_counter() - logger.t0}
+        tmp_clock = out / "clock.tmp.json"
+        tmp_clock.write_text(json.dumps(clock), encoding="utf-8")
+        os.replace(tmp_clock, out / CLOCK_FILE)
 
     logger = Logger()
     t0 = time.perf_counter()
@@ -503,6 +508,25 @@ def _first_line(err: BaseException) -> str:
     """An exception's message in one line (its first), or its type's name if it has none."""
     text = str(err).strip()
     return text.splitlines()[0] if text else type(err).__name__
+
+
+CLOCK_FILE = "clock.json"
+"""Beside a DQN or A2C run's saved model: ``{"step", "wall_s"}``, the run's step count and its wall-clock seconds
+summed over every process when the model was last saved, so that a resumed run's clock counts the time between its
+last evaluation and the stop."""
+
+
+def wall_at_save(run: Path, step: int, rows: list[dict[str, str]]) -> float:
+    """The wall-clock seconds a run had trained when its model, now at ``step``, was saved: ``CLOCK_FILE`` if it
+    was written at that step, else the last evaluation row's (``rows``: ``eval.csv``; a run saved before the clock
+    was kept), else 0."""
+    try:
+        clock = json.loads((run / CLOCK_FILE).read_text(encoding="utf-8"))
+        if int(clock["step"]) == step:
+            return float(clock["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return float(rows[-1]["wall_s"]) if rows else 0.0
 
 
 def _read_rows(path: Path) -> list[dict[str, str]]:
