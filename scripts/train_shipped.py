@@ -347,9 +347,9 @@ def main() -> None:
             seeds = seeds_given or default_seeds(scene, algo)
             runs = [run_folder(out, scene, algo, seed) for seed in seeds]
             todo = sum(not (r / "actor.npz").exists() for r in runs)
-            steps = args.steps if args.steps is not None else default_steps(scene, algo)
-            # environment steps still to train, a DDPG step counted as two (its updates cost as much as the step)
-            cost = 0 if args.evaluate_only else todo * steps * (2 if algo in DDPG_ALGOS else 1)
+            cost = 0  # environment steps still to train, a DDPG step counted as two (its updates cost as much)
+            if todo and not args.evaluate_only:
+                cost = todo * (args.steps or default_steps(scene, algo)) * (2 if algo in DDPG_ALGOS else 1)
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
     for _, _, scene, algo, seeds, runs, dest in sorted(work):
         steps = args.steps if args.steps is not None else default_steps(scene, algo)
