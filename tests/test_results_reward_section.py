@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from deck_sim.policies import TRAINED_DIR
+from deck_sim.policies import TRAINED_DIR, shipped_log_dir
 from training.heldout import held_out_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,7 +46,10 @@ def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make
         _run(tmp_path, "mddpg", seed, m, 200.0)
         _run(tmp_path, "ddpg", seed, d, 150.0, steps=800_000 if seed == 2 else 1_000_000)
     runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
-    assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2] and set(runs) == {"mddpg", "ddpg"}
+    assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2]
+    # an algorithm without run folders is read from the logs shipped beside its reward-regime actor, if any
+    shipped = {a for a in ("dqn", "a2c") if (shipped_log_dir(f"{a}-reward", "deck1") / "eval.csv").exists()}
+    assert set(runs) == {"mddpg", "ddpg", *shipped}
     assert [r["finished"] for r in runs["ddpg"]] == [True, True, False]
     text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
     # MDDPG: 90, 92, 94 -> mean 92, sd 2, t(2) 4.303 -> +- 4.97
