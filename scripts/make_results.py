@@ -48,7 +48,7 @@ from deck_sim.evaluation import (  # noqa: E402
     write_report,
 )
 from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
-from deck_sim.policies import TRAINED_DIR, load_actor, shipped_log_dir  # noqa: E402
+from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_dir, shipped_logs  # noqa: E402
 from deck_sim.policies.regimes import actor_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
@@ -118,10 +118,7 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
                 steps = f"{fig['train_steps']:,}" if "train_steps" in fig else "?"
                 wall = f"{fig['train_wall_s'] / 60:.0f} min" if "train_wall_s" in fig else "?"
                 seeds = fig.get("seeds") or [fig.get("seed", "?")]
-                trained = fig.get("trained_seeds") or seeds
-                runs = (f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; the mean of their actors' actions)"
-                        if len(seeds) > 1 else f"1 (seed {seeds[0]})" if len(trained) <= 1 else
-                        f"1 (seed {seeds[0]}, the best periodic evaluation of seeds {', '.join(map(str, trained))})")
+                runs = seeds_text(seeds, fig.get("trained_seeds"))
                 learnt = shipped_regime(scene, agent) or "not recorded"
                 lines.append(f"| {agent} | {scene} | {learnt} | {runs} | {steps} | {wall} | {episodes} |")
             else:
@@ -155,7 +152,8 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
         return {}
     out: dict[str, list[dict]] = {}
     for algo in recipe.algos:
-        shipped = member_logs_by_seed(scene, f"{algo}-reward") if f"{algo}-reward" in LEARNED else {}
+        shipped = ({seed: folder for folder, seed in shipped_logs(f"{algo}-reward", scene) if seed is not None}
+                   if f"{algo}-reward" in LEARNED else {})
         for seed in recipe.seeds(algo):
             run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"
             record = None
@@ -177,19 +175,6 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
                  "wall_s": float(rows[-1]["wall_s"]) if rows else float("nan")}
             )
     return out
-
-
-def member_logs_by_seed(scene: str, agent: str) -> dict[int, Path]:
-    """The shipped log folders of ``agent`` on ``scene`` by training seed (``scripts/train_shipped.py``'s
-    ``ship_logs``: the first run's in the folder, the others' in ``seed<k>/``)."""
-    logs = shipped_log_dir(agent, scene)
-    found = {}
-    for folder in (logs, *sorted(logs.glob("seed*"))):
-        try:
-            found[int(json.loads((folder / "config.json").read_text())["seed"])] = folder
-        except (OSError, ValueError, KeyError):
-            continue
-    return found
 
 
 def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> str:

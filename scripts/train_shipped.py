@@ -60,7 +60,6 @@ import csv  # noqa: E402
 import fcntl  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
-import re  # noqa: E402
 import shutil  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -77,7 +76,9 @@ from deck_sim.policies import (  # noqa: E402
     EnsemblePolicy,
     LearnedPolicy,
     load_actor,
+    seeds_text,
     shipped_log_dir,
+    shipped_logs,
 )
 from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
@@ -113,7 +114,7 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str, h
     <scene>_<algo>/`` beside the shipped actor (a few KiB each), so that ``scripts/make_results.py`` draws its
     learning curve on a checkout without the run folders: the first run's in that folder, the others' (an ensemble's
     further seeds, or the seeds a stable-baselines3 agent was not chosen from) in ``seed<seed>/`` below it
-    (``member_logs``)."""
+    (``deck_sim.policies.shipped_logs``)."""
     logs = shipped_log_dir(algo, scene)
     for old in logs.glob("seed*"):  # nothing of an earlier shipped run may stay beside the new logs
         if old.is_symlink() or old.is_file():
@@ -136,14 +137,6 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str, h
 def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
     """The training seeds of a shipped file, from its ``meta`` record (each member's, for an ensemble)."""
     return tuple(int(m["config"]["seed"]) for m in meta.get("members") or [meta])
-
-
-def member_logs(scene: str, algo: str) -> list[Path]:
-    """The shipped log folders of ``scene``'s ``algo``, first run first, then ``seed<k>/`` by seed (``ship_logs``),
-    those with an ``eval.csv``."""
-    logs = shipped_log_dir(algo, scene)
-    extra = [(int(m[1]), d) for d in logs.glob("seed*") if d.is_dir() and (m := re.fullmatch(r"seed(\d+)", d.name))]
-    return [d for d in (logs, *(d for _, d in sorted(extra))) if (d / "eval.csv").exists()]
 
 
 def ship(runs: list[Path], dest: Path) -> None:
@@ -373,8 +366,8 @@ def main() -> None:
         meta = load_actor(dest).meta
         seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
         # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
-        logs = member_logs(scene, algo)
-        trained = sorted({s for d in logs if (s := _log_seed(d)) is not None} | set(seeds))
+        logs = [folder for folder, _ in shipped_logs(algo, scene)]
+        trained = sorted({s for _, s in shipped_logs(algo, scene) if s is not None} | set(seeds))
         # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
         # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
         if len(logs) != len(trained):
@@ -415,14 +408,6 @@ def main() -> None:
             f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
             flush=True,
         )
-
-
-def _log_seed(folder: Path) -> int | None:
-    """The training seed in ``folder/config.json``, None if the file or its seed is missing or unreadable."""
-    try:
-        return int(json.loads((folder / "config.json").read_text(encoding="utf-8"))["seed"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 def _train_wall(run: Path) -> float:
@@ -489,16 +474,6 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def seeds_cell(seeds: list[int], trained: list[int] | None = None) -> str:
-    """How many runs stand behind a shipped agent, and their seeds: ``1 (seed 0)``, ``2 (seeds 0, 1; mean action)``,
-    or for one run chosen from several trained (``trained``) ``1 (seed 1, the best of seeds 0, 1, 2)``."""
-    if len(seeds) == 1:
-        if trained and len(trained) > 1:
-            return f"1 (seed {seeds[0]}, the best of seeds {', '.join(map(str, trained))})"
-        return f"1 (seed {seeds[0]})"
-    return f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; mean action)"
-
-
 def learnt_from(scene: str, algo: str) -> str:
     """The regime the shipped ``algo`` of ``scene`` learnt in (``deck_sim.policies.regimes``), read from its
     shipped training config; stable-baselines3 learns from the environment's reward alone."""
@@ -517,7 +492,7 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, algo, r in shipped_records(report):
-        runs = seeds_cell(r.get("seeds", []), r.get("trained_seeds"))
+        runs = seeds_text(r.get("seeds", []), r.get("trained_seeds"))
         lines.append(
             f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {runs} | "
             f"{100 * r['success']:.1f} % | "

@@ -12,7 +12,15 @@ import pytest
 
 import deck_sim
 from deck_sim.agents import AGENTS
-from deck_sim.policies import EnsemblePolicy, LearnedPolicy, PolicyFileError, load_actor, make_policy
+from deck_sim.policies import (
+    EnsemblePolicy,
+    LearnedPolicy,
+    PolicyFileError,
+    load_actor,
+    make_policy,
+    seeds_text,
+    shipped_logs,
+)
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
 
@@ -182,7 +190,7 @@ def test_project_readme_table_matches_results_json():
         record = _shipped_agents()[scene][labels[label]]
         agent = AGENTS[labels[label]]
         assert learnt == ("reward" if agent.trainer == "sb3" else agent.recipe or "oracle-teacher")
-        assert runs == script.seeds_cell(record["seeds"], record.get("trained_seeds")), (scene, label)
+        assert runs == seeds_text(record["seeds"], record.get("trained_seeds")), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
             assert cell == f"{100 * record[key]:.1f} %", (scene, label, key)
@@ -205,8 +213,8 @@ def test_the_shipped_policies_page_is_the_scripts_own_output(tmp_path):
     legacy = tmp_path / "results.json"
     legacy.write_text(json.dumps({"deck1": {"dqn": {"success": 0.5, "seed": 4}}}))
     assert script.read_report(legacy) == {"deck1": {"dqn": {"success": 0.5, "seeds": [4]}}}
-    assert script.seeds_cell([4]) == "1 (seed 4)" and script.seeds_cell([0, 1]) == "2 (seeds 0, 1; mean action)"
-    assert script.seeds_cell([1], [0, 1, 2]) == "1 (seed 1, the best of seeds 0, 1, 2)"
+    assert seeds_text([4]) == "1 (seed 4)" and seeds_text([0, 1]) == "2 (seeds 0, 1; mean action)"
+    assert seeds_text([1], [0, 1, 2]) == "1 (seed 1, the best of seeds 0, 1, 2)"
 
 
 def test_a_stable_baselines3_agent_ships_the_run_with_the_best_periodic_evaluation(tmp_path):
@@ -257,7 +265,7 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
     """``scripts/train_shipped.py`` with two seeds: the file is the runs' actors averaged, each run's log is kept
     (the first beside the file's name, the other in ``seed<k>/``), a stale log of an earlier ensemble goes, and
     the training time is the runs' sum."""
-    from deck_sim.policies import shipped_policy_path
+    from deck_sim.policies import registry, shipped_policy_path
 
     script = _train_shipped()
     actor = load_actor(shipped_policy_path("ddpg", "deck1"))
@@ -276,7 +284,7 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
     logs = tmp_path / "logs" / "deck1_ddpg"
     (logs / "seed9").mkdir(parents=True)
     (logs / "seed9" / "eval.csv").write_text("step,wall_s\n1,1\n")  # an earlier ensemble's third run
-    monkeypatch.setattr(script, "shipped_log_dir", lambda algo, scene: tmp_path / "logs" / f"{scene}_{algo}")
+    monkeypatch.setattr(registry, "TRAINED_DIR", tmp_path)  # the shipped logs under tmp_path/logs
     dest = tmp_path / "deck1_ddpg.npz"
     script.ship(runs, dest)
     script.ship_logs(runs, (0, 3), "deck1", "ddpg")
@@ -285,8 +293,11 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
     assert (logs / "eval.csv").read_text() == (runs[0] / "eval.csv").read_text()
     assert (logs / "seed3" / "config.json").read_text() == (runs[1] / "config.json").read_text()
     assert not (logs / "seed9").exists()
-    assert script.member_logs("deck1", "ddpg") == [logs, logs / "seed3"]
-    assert sum(script._train_wall(d) for d in script.member_logs("deck1", "ddpg")) == 1500.0
+    assert shipped_logs("ddpg", "deck1") == [(logs, 0), (logs / "seed3", 3)]
+    assert sum(script._train_wall(d) for d, _ in shipped_logs("ddpg", "deck1")) == 1500.0
+    (logs / "seed3" / "config.json").write_text("{")  # an unreadable config: the folder stays, its seed unknown
+    (logs / "seed5").mkdir()  # a folder without a log is not a run's
+    assert shipped_logs("ddpg", "deck1") == [(logs, 0), (logs / "seed3", None)]
     script.ship(runs[:1], dest)  # one run: its actor file itself
     assert dest.read_bytes() == (runs[0] / "actor.npz").read_bytes()
     assert script.file_seeds(load_actor(dest).meta) == (0,)

@@ -38,7 +38,9 @@ from deck_sim.policies.registry import (
     make_policy,
     policy_file,
     policy_overrides,
+    seeds_text,
     shipped_log_dir,
+    shipped_logs,
     shipped_policy_path,
 )
 from deck_sim.policies.team import (
@@ -86,8 +88,10 @@ __all__ = [
     "obstacle_sets",
     "policy_file",
     "policy_overrides",
+    "seeds_text",
     "set_indices",
     "shipped_log_dir",
+    "shipped_logs",
     "shipped_policy_path",
     "team_policy_overrides",
 ]

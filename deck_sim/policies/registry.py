@@ -6,7 +6,10 @@ configuration read.
 
 from __future__ import annotations
 
+import json
 import os
+import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +51,37 @@ def shipped_log_dir(algo: str, scene: str) -> Path:
     """Where the training log of the shipped ``algo`` actor of ``scene`` lies (``eval.csv``, ``config.json``;
     ``scripts/train_shipped.py`` writes it, ``scripts/make_results.py`` draws its learning curve); it may not exist."""
     return TRAINED_DIR / "logs" / f"{scene}_{algo}"
+
+
+def shipped_logs(algo: str, scene: str) -> list[tuple[Path, int | None]]:
+    """The training logs shipped with the ``algo`` actor of ``scene``, one folder per run behind it: the first run's
+    (``shipped_log_dir``), then the further runs' (an ensemble's other members, or the seeds a stable-baselines3
+    agent was not chosen from) in its ``seed<k>/`` folders by ``k``; those holding an ``eval.csv``, each with the
+    training seed its ``config.json`` records (None if that file or its seed is missing or unreadable)."""
+    logs = shipped_log_dir(algo, scene)
+    extra = sorted((int(m[1]), d) for d in logs.glob("seed*")
+                   if d.is_dir() and (m := re.fullmatch(r"seed(\d+)", d.name)))
+    found = []
+    for folder in (logs, *(d for _, d in extra)):
+        if not (folder / "eval.csv").exists():
+            continue
+        try:
+            seed = int(json.loads((folder / "config.json").read_text(encoding="utf-8"))["seed"])
+        except (OSError, ValueError, KeyError, TypeError):
+            seed = None
+        found.append((folder, seed))
+    return found
+
+
+def seeds_text(seeds: Sequence[int], trained: Sequence[int] | None = None) -> str:
+    """How many training runs stand behind a shipped agent, and their seeds, for tables: ``1 (seed 0)``,
+    ``2 (seeds 0, 1; mean action)`` (an ensemble), or for one run chosen from several (``trained``)
+    ``1 (seed 1, the best of seeds 0, 1, 2)``."""
+    if len(seeds) == 1:
+        if trained and len(trained) > 1:
+            return f"1 (seed {seeds[0]}, the best of seeds {', '.join(map(str, trained))})"
+        return f"1 (seed {seeds[0]})"
+    return f"{len(seeds)} (seeds {', '.join(map(str, seeds))}; mean action)"
 
 
 def policy_file(name: str, scene: str) -> Path | None:
