@@ -37,6 +37,22 @@ def test_scene_overrides_are_checked_with_the_algorithms_predictor():
         make_config("reward", algo="mddpg", scene_overrides={"episode__horizon": 0})
 
 
+def test_the_curriculum_switch_starts_each_scene_small_and_ends_on_the_whole_scene():
+    from deck_sim.scenes import load_scene
+    from training.config import arm_config
+    from training.envs import stage_overrides
+
+    for scene in ("deck1", "deck2", "square"):
+        cfg = arm_config("reward-mddpg-with-curriculum", scene, 1000, 0)
+        first, second = (stage_overrides(scene, stage) for stage in cfg.curriculum)
+        m = load_scene(scene).movers
+        movers = [sum(o[f"movers__{k}"] for k in ("tractors", "aircraft", "pedestrians")) for o in (first, second)]
+        assert movers == [2, min(5, m.tractors + m.aircraft + m.pedestrians)], scene
+        assert first["agent__max_target_distance"] == 100.0 and second["agent__max_target_distance"] == 150.0
+        assert stage_overrides(scene, None) == {}  # past the last stage: the scene as it is
+        assert [s.until for s in cfg.curriculum] == [0.1, 0.25]
+
+
 def test_the_forecast_is_mddpgs_and_named_when_wrong():
     from training.config import arm_config
 

@@ -605,6 +605,12 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
     "wait": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "stop"},
     "ez": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "random"},
+    "curriculum": {
+        "curriculum": (
+            {"until": 0.1, "max_target_distance": 100.0, "movers": 2},
+            {"until": 0.25, "max_target_distance": 150.0, "movers": 5},
+        )
+    },
 }
 """What each ``-with-<switch>`` arm of ``arm_config`` adds to a recipe (``shape``: the obstacles' nearest points
 and the movers' headings in the observation, scene field ``episode.obstacle_shape``; ``decay``: the cloning weight
@@ -631,6 +637,8 @@ MDDPG alike; ``approach``: each mover's closest approach on its forecast, time a
 observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
 "stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
+``curriculum``: for the first 10 % of the run's steps 2 movers and targets at most 100 m away, until 25 % 5 movers
+(deck 1's all) and at most 150 m, then the whole scene, ``curriculum``;
 ``oracle``: MDDPG observes the movers' true future in place of the MPC forecast, ``forecast = "oracle"`` (a
 privileged diagnostic); ``cvforecast``: a constant-velocity forecast, ``forecast = "constant_velocity"``; ``avg``:
 the slow average of the actor exported as ``actor_avg.npz``, ``actor_average = 1e-4``).
