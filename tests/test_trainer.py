@@ -88,6 +88,34 @@ def test_curriculum_stages_change_the_scene_not_the_observation(tmp_path):
     assert np.all(rows[:10, dyn] == FAR)  # stage 0: every mover row is the far placeholder
     config = t.config.to_dict()
     assert TrainConfig.from_dict(json.loads(json.dumps(config))).curriculum == stages  # saved and read back
+    from training.checkpoints import CheckpointError, check_compatible
+
+    with pytest.raises(CheckpointError, match="total_steps: checkpoint 60, now 120"):  # the stages would move
+        check_compatible(TrainConfig.from_dict({**config, "total_steps": 120}), config, tmp_path / "c")
+    check_compatible(TrainConfig.from_dict({**config, "curriculum": [], "total_steps": 120}),
+                     {**config, "curriculum": []}, tmp_path / "c")  # without one a run may go on longer
+
+
+@pytest.mark.slow
+def test_the_normaliser_leaves_out_the_rows_a_curriculum_stage_pads(tmp_path):
+    from training.config import CurriculumStage
+
+    stages = (CurriculumStage(until=0.5, max_target_distance=60.0, movers=2),)  # 2 of deck 1's 5 movers
+    t = Trainer(_short(total_steps=48, demo_episodes=0, pretrain_updates=0, curriculum=stages,
+                       scene_overrides={"episode__time_limit": 3.0}), tmp_path / "n", progress=False)
+    t.train()  # 6-step episodes: the second half of the run plays the whole scene
+    rows = t.buffer.obs[: t.buffer.size].reshape(t.buffer.size, -1)
+    dyn = t.layout.slices()["dynamic_obstacles"]
+    movers = rows[:, dyn].reshape(len(rows), 5, 2)
+    real = ~np.all(movers == FAR, axis=2)  # (rows, movers): a mover that took part
+    assert real[:, :2].all() and 0 < real[:, 2:].sum() < real[:, 2:].size
+    count = t.agent.norm.count.numpy()[dyn].reshape(5, 2)
+    np.testing.assert_allclose(count, np.repeat(real.sum(0)[:, None], 2, axis=1) + 1e-4)
+    np.testing.assert_allclose(t.agent.norm.count.numpy()[t.layout.slices()["target"]], len(rows) + 1e-4)
+    mean = t.agent.norm.mean.numpy()[dyn].reshape(5, 2)
+    for k in range(5):  # each mover row's mean is that of the real movers it held alone
+        np.testing.assert_allclose(mean[k], movers[real[:, k], k].mean(0), rtol=1e-4, atol=1e-3)
+    assert np.abs(mean).max() < FAR / 4
 
 
 @pytest.mark.slow

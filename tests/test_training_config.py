@@ -37,7 +37,7 @@ def test_scene_overrides_are_checked_with_the_algorithms_predictor():
         make_config("reward", algo="mddpg", scene_overrides={"episode__horizon": 0})
 
 
-def test_the_curriculum_switch_starts_each_scene_small_and_ends_on_the_whole_scene():
+def test_the_curriculum_switch_starts_each_scene_small():
     from deck_sim.scenes import load_scene
     from training.config import arm_config
     from training.envs import stage_overrides
@@ -49,7 +49,11 @@ def test_the_curriculum_switch_starts_each_scene_small_and_ends_on_the_whole_sce
         movers = [sum(o[f"movers__{k}"] for k in ("tractors", "aircraft", "pedestrians")) for o in (first, second)]
         assert movers == [2, min(5, m.tractors + m.aircraft + m.pedestrians)], scene
         assert first["agent__max_target_distance"] == 100.0 and second["agent__max_target_distance"] == 150.0
-        assert stage_overrides(scene, None) == {}  # past the last stage: the scene as it is
+        spec = load_scene(scene)
+        assert not set(first["agent__target_sites"]) & set(m.spots)  # (a mover may stand on its spot)
+        assert set(first["agent__target_sites"]) == {*spec.agent.target_sites, *spec.agent.start_sites}
+        for stage in (first, second):  # every stage's scene is valid (the config's validation loads them too)
+            load_scene(scene, **stage)
         assert [s.until for s in cfg.curriculum] == [0.1, 0.25]
 
 

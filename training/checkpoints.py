@@ -56,8 +56,8 @@ _COMMENT_SIZE = len(CHECKSUM_TAG) + 64
 _warned: set[tuple[str, int, int]] = set()  # the checkpoints without a checksum this process has warned of
 
 RESUMABLE_CHANGES = ("total_steps", "polish_epochs", "polish_lr", "polish_hidden", "dagger_steps")
-"""Config fields a resumed run may change: a longer run, or a final cloning fit or a DAgger round added to a
-finished one."""
+"""Config fields a resumed run may change: a longer run (not with a curriculum, whose stages end at fractions of
+``total_steps``), or a final cloning fit or a DAgger round added to a finished one."""
 
 
 class CheckpointError(RuntimeError):
@@ -225,10 +225,13 @@ def comparable(saved: dict[str, Any]) -> dict[str, Any]:
 
 def check_compatible(config: TrainConfig, saved: dict[str, Any], path: Path) -> None:
     """``CheckpointError`` unless the checkpoint ``path``'s config ``saved`` equals ``config`` but for
-    ``RESUMABLE_CHANGES``; the message names up to five differing fields."""
+    ``RESUMABLE_CHANGES`` (with a curriculum, ``total_steps`` too); the message names up to five differing
+    fields."""
     mine = config.to_dict()
     saved = comparable(saved)
     diff = [k for k in sorted(set(mine) | set(saved)) if k not in RESUMABLE_CHANGES and mine.get(k) != saved.get(k)]
+    if mine.get("curriculum") and mine.get("total_steps") != saved.get("total_steps"):
+        diff.insert(0, "total_steps")  # (the stages end at fractions of it: another length would move them)
     if diff:
         detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, now {mine.get(k)!r}" for k in diff[:5])
         raise CheckpointError(f"{path} was written by another configuration ({detail})")

@@ -482,6 +482,15 @@ class TrainConfig:
             load_scene(self.scene, **{**self.scene_overrides, "episode__predictor": self.predictor})
         except SceneSpecError as err:
             raise ConfigError(f"scene {self.scene!r} with scene_overrides {self.scene_overrides}: {err}") from err
+        if self.curriculum:
+            from training.envs import stage_overrides
+
+            for i, stage in enumerate(self.curriculum):
+                try:
+                    load_scene(self.scene, **{**self.scene_overrides, **stage_overrides(self.scene, stage,
+                                                                                        self.scene_overrides)})
+                except SceneSpecError as err:
+                    raise ConfigError(f"curriculum[{i}]: scene {self.scene!r} in this stage: {err}") from err
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable copy."""
@@ -638,7 +647,9 @@ observation, ``episode.predicted_approach``; ``wait``: exploration that now and 
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
 "stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
 ``curriculum``: for the first 10 % of the run's steps 2 movers and targets at most 100 m away, until 25 % 5 movers
-(deck 1's all) and at most 150 m, then the whole scene, ``curriculum``;
+(deck 1's all) and at most 150 m, then the whole scene, ``curriculum`` (a stage also draws targets from the start
+sites, so that short trips exist; the observation normaliser leaves out the rows padded for the movers a stage
+leaves out; DDPG and MDDPG arms only);
 ``oracle``: MDDPG observes the movers' true future in place of the MPC forecast, ``forecast = "oracle"`` (a
 privileged diagnostic); ``cvforecast``: a constant-velocity forecast, ``forecast = "constant_velocity"``; ``avg``:
 the slow average of the actor exported as ``actor_avg.npz``, ``actor_average = 1e-4``).

@@ -104,6 +104,18 @@ class ObservationLayout:
         return np.concatenate(parts, axis=-1)
 
 
+    def real_mask(self, full: ObservationLayout) -> np.ndarray:
+        """(full.dim,) booleans: True where ``pad_to`` puts this layout's own values into ``full``, False on the
+        rows it pads for the movers this layout lacks (what the observation normaliser leaves out)."""
+        parts = []
+        for k, shape in full.shapes.items():
+            mask = np.ones(shape, dtype=bool)
+            if k in MOVER_KEYS and self.shapes[k][0] < shape[0]:
+                mask[self.shapes[k][0]:] = False
+            parts.append(mask.reshape(-1))
+        return np.concatenate(parts)
+
+
 def env_layout(env: DeckSimEnv) -> ObservationLayout:
     """The layout of ``env``'s flat observations."""
     return ObservationLayout({k: tuple(v) for k, v in env.composer_env.task.observation_shapes.items()})
@@ -119,17 +131,19 @@ def scene_layout(scene: str, predictor: str, overrides: dict[str, Any]) -> Obser
         probe.close()
 
 
-def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]:
-    """Scene overrides for a curriculum stage.
+def stage_overrides(
+    scene: str, stage: CurriculumStage | None, overrides: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Scene overrides for a curriculum stage of ``scene`` as the run's ``overrides`` make it.
 
     The first ``stage.movers`` movers take part (tractors, then taxiing aircraft, then pedestrians). Targets lie at
     most ``stage.max_target_distance`` from the start: where the scene's own target sites are farther, the stage
-    also draws targets from its other named sites (the movers' spots and the start sites), so that short trips
-    exist; the final stage (``None``) is the scene as it is.
+    also draws targets from the start sites, so that short trips exist (not from the movers' spots, where a mover
+    may stand on the target); the final stage (``None``) is the scene as it is.
     """
     if stage is None:
         return {}
-    spec = load_scene(scene)
+    spec = load_scene(scene, **(overrides or {}))
     m, agent = spec.movers, spec.agent
     left = int(stage.movers)
     counts = {}
@@ -145,7 +159,7 @@ def stage_overrides(scene: str, stage: CurriculumStage | None) -> dict[str, Any]
         "movers__spawn_random": min(m.spawn_random, total - near),
     }
     if cap < agent.max_target_distance:
-        sites = list(dict.fromkeys([*agent.target_sites, *m.spots, *agent.start_sites]))
+        sites = list(dict.fromkeys([*agent.target_sites, *agent.start_sites]))
         out.update(
             {
                 "agent__target_sites": sites,

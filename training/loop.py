@@ -190,6 +190,7 @@ class Trainer:
         self.demo_summary: dict[str, float] = {}
         self.last_eval_step = -1
         self._specs: dict[int, EnvSpec] = {}
+        self._real_masks: dict[int, np.ndarray] = {}  # per curriculum stage: ``_real_mask``
         self._eval_env: Any = None
         self._stop = False
         self._started = False
@@ -233,6 +234,15 @@ class Trainer:
                 return i
         return len(stages)  # past the last stage: the full scene
 
+    def _real_mask(self, slot: _Slot) -> np.ndarray:
+        """(obs_dim,) booleans: the entries of ``slot``'s current observation that its scene fills, False on the
+        rows padded for the movers its curriculum stage leaves out (``ObservationLayout.real_mask``)."""
+        if slot.layout is None or slot.layout.dim == self.layout.dim:
+            return np.ones(self.layout.dim, dtype=bool)
+        if slot.stage not in self._real_masks:
+            self._real_masks[slot.stage] = slot.layout.real_mask(self.layout)
+        return self._real_masks[slot.stage]
+
     def _stage(self, index: int) -> CurriculumStage | None:
         stages = self.config.curriculum
         return stages[index] if index < len(stages) else None
@@ -241,7 +251,7 @@ class Trainer:
         """What an environment of curriculum ``stage`` is built from."""
         if stage not in self._specs:
             cfg = self.config
-            overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage))}
+            overrides = {**cfg.scene_overrides, **stage_overrides(cfg.scene, self._stage(stage), cfg.scene_overrides)}
             self._specs[stage] = EnvSpec(
                 cfg.scene, cfg.predictor, overrides, cfg.expert_relabel, cfg.teacher_body, cfg.teacher_policy_view
             )
@@ -476,6 +486,7 @@ class Trainer:
         results = self.envs.step_wait()
         rows: dict[str, list[Any]] = {k: [] for k in ("obs", "action", "reward", "next_obs", "terminated", "expert")}
         marks: dict[str, list[Any]] = {k: [] for k in ("episode", "step", "reached", "failed", "goal_ok", "end")}
+        real: list[np.ndarray] = []  # with a curriculum: which entries of each row are not padding
         for slot, res in zip(self.slots, results, strict=True):
             action, next_obs = res.action, res.obs
             if self.buffer.track_episodes:
@@ -491,6 +502,8 @@ class Trainer:
             slot.ret += res.reward
             slot.length += 1
             rows["obs"].append(slot.obs)
+            if cfg.curriculum:
+                real.append(self._real_mask(slot))
             rows["action"].append(action)
             rows["reward"].append(res.reward)
             rows["next_obs"].append(next_obs)  # at a truncation: the final observation, bootstrapped through
@@ -508,8 +521,8 @@ class Trainer:
             else:
                 slot.obs = next_obs
         batch = {k: np.asarray(v, dtype=np.float32) for k, v in rows.items() if k != "expert"}
-        if explore:
-            self.agent.norm.update(batch["obs"])
+        if explore:  # (the rows a curriculum stage pads for its left-out movers stand for nothing: left out)
+            self.agent.norm.update(batch["obs"], np.stack(real) if real else None)
         expert = np.asarray(rows["expert"], dtype=np.float32) if cfg.expert_relabel else None
         episode_marks = EpisodeMarks(**{k: np.asarray(v) for k, v in marks.items()}) if marks["episode"] else None
         self.buffer.add(

@@ -54,7 +54,8 @@ class RunningNorm(nn.Module):
     """Observation normaliser: (x - mean) / sqrt(var + eps), clipped to +-``clip``; identity when disabled.
 
     Statistics are updated from collected observations with Chan's parallel algorithm (``update``), never from
-    replayed batches.
+    replayed batches. Each dimension keeps its own count, so that entries which stand for nothing (the rows of the
+    movers a curriculum stage leaves out, ``training.envs.ObservationLayout.real_mask``) can be left out of it.
     """
 
     def __init__(self, dim: int, enabled: bool = True, clip: float = 10.0, eps: float = 1e-8) -> None:
@@ -64,15 +65,29 @@ class RunningNorm(nn.Module):
         self.eps = eps
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
-        self.register_buffer("count", torch.tensor(1e-4, dtype=torch.float64))
+        self.register_buffer("count", torch.full((dim,), 1e-4, dtype=torch.float64))
         self._groups: list[torch.Tensor] = []  # index arrays whose rows share statistics (``tie``)
 
-    def update(self, x: np.ndarray) -> None:
-        """Fold a batch of observations (n, dim) into the statistics."""
+    def _load_from_state_dict(self, state_dict: Mapping, prefix: str, *args: object, **kwargs: object) -> None:
+        count = state_dict.get(prefix + "count")
+        if isinstance(count, torch.Tensor) and count.dim() == 0:  # one count for every dimension (older files)
+            state_dict = {**state_dict, prefix + "count": count.expand_as(self.count).clone()}
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def update(self, x: np.ndarray, valid: np.ndarray | None = None) -> None:
+        """Fold a batch of observations (n, dim) into the statistics; with ``valid`` (n, dim) booleans, each
+        dimension only from the entries marked True (a dimension with none keeps its statistics)."""
         if not self.enabled or len(x) == 0:
             return
         x = torch.as_tensor(np.asarray(x, dtype=np.float64))
-        b_mean, b_var, b_n = x.mean(0), x.var(0, unbiased=False), float(len(x))
+        if valid is None or bool(np.all(valid)):
+            b_mean, b_var, b_n = x.mean(0), x.var(0, unbiased=False), torch.full_like(self.count, float(len(x)))
+        else:
+            w = torch.as_tensor(np.asarray(valid, dtype=np.float64))
+            b_n = w.sum(0)
+            seen = b_n > 0
+            b_mean = torch.where(seen, (x * w).sum(0) / b_n.clamp_min(1.0), self.mean)
+            b_var = torch.where(seen, ((x - b_mean).square() * w).sum(0) / b_n.clamp_min(1.0), self.var)
         delta = b_mean - self.mean
         total = self.count + b_n
         self.mean += delta * b_n / total
@@ -93,10 +108,15 @@ class RunningNorm(nn.Module):
             return self.mean, torch.sqrt(self.var + self.eps)
         mean, var = self.mean.clone(), self.var.clone()
         for g in self._groups:
-            m, v = self.mean[g], self.var[g]  # (n, f); every row saw the same count
-            pooled = m.mean(0)
+            m, v, n = self.mean[g], self.var[g], self.count[g]  # (n, f)
+            if bool(torch.all(n == n[:1])):  # every row saw the same count
+                pooled = m.mean(0)
+                var[g] = ((v + m.square()).mean(0) - pooled.square()).clamp_min(0.0).expand_as(m)
+            else:  # (rows a curriculum stage left out saw fewer): each row weighs by its count
+                w = n / n.sum(0)
+                pooled = (w * m).sum(0)
+                var[g] = ((w * (v + m.square())).sum(0) - pooled.square()).clamp_min(0.0).expand_as(m)
             mean[g] = pooled.expand_as(m)
-            var[g] = ((v + m.square()).mean(0) - pooled.square()).clamp_min(0.0).expand_as(m)
         return mean, torch.sqrt(var + self.eps)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
