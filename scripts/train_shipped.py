@@ -366,8 +366,9 @@ def main() -> None:
         meta = load_actor(dest).meta
         seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
         # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
-        logs = [folder for folder, _ in shipped_logs(algo, scene)]
-        trained = sorted({s for _, s in shipped_logs(algo, scene) if s is not None} | set(seeds))
+        shipped_runs = shipped_logs(algo, scene)
+        logs = [folder for folder, _ in shipped_runs]
+        trained = sorted({s for _, s in shipped_runs if s is not None} | set(seeds))
         # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
         # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
         if len(logs) != len(trained):
