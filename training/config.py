@@ -486,9 +486,10 @@ class TrainConfig:
             from training.envs import stage_overrides
 
             for i, stage in enumerate(self.curriculum):
+                staged = {**self.scene_overrides, **stage_overrides(self.scene, stage, self.scene_overrides)}
                 try:
-                    load_scene(self.scene, **{**self.scene_overrides, **stage_overrides(self.scene, stage,
-                                                                                        self.scene_overrides)})
+                    load_scene(self.scene, **staged)
+                    load_scene(self.scene, **{**staged, "episode__predictor": self.predictor})
                 except SceneSpecError as err:
                     raise ConfigError(f"curriculum[{i}]: scene {self.scene!r} in this stage: {err}") from err
 

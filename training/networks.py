@@ -67,12 +67,14 @@ class RunningNorm(nn.Module):
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.full((dim,), 1e-4, dtype=torch.float64))
         self._groups: list[torch.Tensor] = []  # index arrays whose rows share statistics (``tie``)
+        self._uniform = True  # every dimension has the same count (no masked entry yet)
 
     def _load_from_state_dict(self, state_dict: Mapping, prefix: str, *args: object, **kwargs: object) -> None:
         count = state_dict.get(prefix + "count")
         if isinstance(count, torch.Tensor) and count.dim() == 0:  # one count for every dimension (older files)
             state_dict = {**state_dict, prefix + "count": count.expand_as(self.count).clone()}
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._uniform = bool(torch.all(self.count == self.count[:1]))
 
     def update(self, x: np.ndarray, valid: np.ndarray | None = None) -> None:
         """Fold a batch of observations (n, dim) into the statistics; with ``valid`` (n, dim) booleans, each
@@ -83,17 +85,22 @@ class RunningNorm(nn.Module):
         if valid is None or bool(np.all(valid)):
             b_mean, b_var, b_n = x.mean(0), x.var(0, unbiased=False), torch.full_like(self.count, float(len(x)))
         else:
-            w = torch.as_tensor(np.asarray(valid, dtype=np.float64))
-            b_n = w.sum(0)
+            keep = torch.as_tensor(np.asarray(valid, dtype=bool))
+            b_n = keep.sum(0).to(torch.float64)
             seen = b_n > 0
-            b_mean = torch.where(seen, (x * w).sum(0) / b_n.clamp_min(1.0), self.mean)
-            b_var = torch.where(seen, ((x - b_mean).square() * w).sum(0) / b_n.clamp_min(1.0), self.var)
+            zero = torch.zeros((), dtype=torch.float64)
+            b_mean = torch.where(seen, torch.where(keep, x, zero).sum(0) / b_n.clamp_min(1.0), self.mean)
+            b_var = torch.where(seen, torch.where(keep, (x - b_mean).square(), zero).sum(0) / b_n.clamp_min(1.0),
+                                self.var)
+            self._uniform = False
         delta = b_mean - self.mean
         total = self.count + b_n
         self.mean += delta * b_n / total
         m2 = self.var * self.count + b_var * b_n + delta.square() * self.count * b_n / total
         self.var.copy_(m2 / total)
         self.count.copy_(total)
+        if not self._uniform:
+            self._uniform = bool(torch.all(self.count == self.count[:1]))
 
     def tie(self, groups: Sequence[np.ndarray]) -> None:
         """Normalise each group's rows alike: ``groups`` are index arrays (n, f) whose n rows are the same f
@@ -109,7 +116,7 @@ class RunningNorm(nn.Module):
         mean, var = self.mean.clone(), self.var.clone()
         for g in self._groups:
             m, v, n = self.mean[g], self.var[g], self.count[g]  # (n, f)
-            if bool(torch.all(n == n[:1])):  # every row saw the same count
+            if self._uniform or bool(torch.all(n == n[:1])):  # every row saw the same count
                 pooled = m.mean(0)
                 var[g] = ((v + m.square()).mean(0) - pooled.square()).clamp_min(0.0).expand_as(m)
             else:  # (rows a curriculum stage left out saw fewer): each row weighs by its count
