@@ -103,7 +103,6 @@ class ObservationLayout:
             parts.append(v.reshape(*flat.shape[:-1], -1))
         return np.concatenate(parts, axis=-1)
 
-
     def real_mask(self, full: ObservationLayout) -> np.ndarray:
         """(full.dim,) booleans: True where ``pad_to`` puts this layout's own values into ``full``, False on the
         rows it pads for the movers this layout lacks (what the observation normaliser leaves out)."""
