@@ -229,13 +229,20 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
     held-out success paired by seed, with its 95 % interval over seeds and, where the records keep each episode's
     success, the bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
     "behind" only when every interval given excludes zero; and which of MDDPG and DDPG turns more and drives
-    further, against the paper's direction."""
+    further, against the paper's direction. Only runs that finished their recipe's budget are compared (equal
+    budgets); a seed still training is named as left out."""
     out = []
     ranked = [a for a in REWARD_ALGOS if a in algos]
     for a, b in zip(ranked, ranked[1:], strict=False):
         ra, rb = ({r["seed"]: r for r in algos[x]} for x in (a, b))
-        both = sorted(set(ra) & set(rb))
+        shared = sorted(set(ra) & set(rb))
+        both = [s for s in shared if ra[s]["finished"] and rb[s]["finished"]]  # (at the recipe's whole budget)
+        training = [s for s in shared if s not in both]
+        left_out = (f" (seed{'s' if len(training) > 1 else ''} {', '.join(map(str, training))} still training: "
+                    "left out)") if training else ""
         if not both:
+            if training:
+                out.append(f"- {scene}: {a} - {b}: no seed finished for both yet{left_out}.")
             continue
         diff = [ra[s]["success"] - rb[s]["success"] for s in both]
         m, lo, hi = mean_interval(diff)
@@ -251,21 +258,22 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
                 f" (95 % interval {spread})"
         else:  # (one seed's episodes say nothing of the spread between training seeds)
             verdict = "one seed, no verdict" + (f" (95 % interval {spread})" if intervals else "")
-        out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}: "
+        out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}{left_out}: "
                    f"{100 * m:+.1f} points, {verdict}; the paper ranks {a} above {b}.")
-    if "mddpg" in algos and "ddpg" in algos:
+    done = {a: [r for r in algos.get(a, []) if r["finished"]] for a in ("mddpg", "ddpg")}
+    if done["mddpg"] and done["ddpg"]:
         for key, paper_key, more, less, what, unit, paper_unit in (
             ("turning_deg", "turning_deg", "more", "less", " turns {} than DDPG", "deg per successful episode", "deg"),
             ("path_ratio", "path_length", "longer", "shorter", "'s paths are {} than DDPG's", "of the shortest",
              "Unity units"),
         ):
-            m, d = (float(np.mean([r[key] for r in algos[a]])) for a in ("mddpg", "ddpg"))
+            m, d = (float(np.mean([r[key] for r in done[a]])) for a in ("mddpg", "ddpg"))
             pm, pd = (PAPER[paper_key].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
             paper = "" if pm is None else \
                 f"; the paper's MDDPG {more if pm > pd else less} ({pm:.2f} against {pd:.2f} {paper_unit})"
             spec = ".0f" if key == "turning_deg" else ".3f"
             out.append(f"- {scene}: MDDPG{what.format(more if m > d else less)} ({m:{spec}} against {d:{spec}} {unit}, "
-                       f"means over seeds){paper}.")
+                       f"means over the finished seeds){paper}.")
     return out
 
 
@@ -280,11 +288,18 @@ def targets(res, reward: dict[str, dict[str, list[dict]]]) -> list[str]:  # noqa
             out.append(f"- MDDPG from the reward alone on {scene}: no run yet (target {100 * goal:.0f} %, the paper "
                        f"{100 * paper:.0f} %).")
             continue
-        m = float(np.mean([r["success"] for r in recs]))
-        done = all(r["finished"] for r in recs) and len(recs) >= 3
-        verdict = ("met" if m >= goal else "not met") if done else \
-            f"not decided: {len(recs)} seed(s), {sum(r['finished'] for r in recs)} finished; at least 3 finished needed"
-        out.append(f"- MDDPG from the reward alone on {scene}: {100 * m:.1f} % (mean of {len(recs)} seed(s)) against "
+        finished = [r for r in recs if r["finished"]]
+        undecided = f"not decided: {len(recs)} seed(s), {len(finished)} finished; at least 3 finished needed"
+        if not finished:
+            out.append(f"- MDDPG from the reward alone on {scene}: no seed finished yet (target {100 * goal:.0f} %, "
+                       f"the paper {100 * paper:.0f} %): {undecided}.")
+            continue
+        m = float(np.mean([r["success"] for r in finished]))  # (a run still training is not at the budget)
+        if len(finished) == len(recs) and len(recs) >= 3:
+            verdict, which = ("met" if m >= goal else "not met"), f"{len(recs)} seed(s)"
+        else:
+            verdict, which = undecided, f"the {len(finished)} finished seed(s)"
+        out.append(f"- MDDPG from the reward alone on {scene}: {100 * m:.1f} % (mean of {which}) against "
                    f"the target of {100 * goal:.0f} % and the paper's {100 * paper:.0f} %: {verdict}.")
     for scene in ("deck1", "deck2"):
         try:
