@@ -36,6 +36,11 @@ go to ``deck_sim/trained/logs/<scene>_<algo>/`` (``ship_logs``; the learning cur
 already shipped and measured is skipped unless ``--redo`` (or ``--evaluate-only``, which measures the shipped files
 again without training).
 
+A seed of MDDPG or DDPG whose run folder is not here (no ``actor.npz``, no checkpoint) but whose actor is in the
+file already shipped, trained with the recipe's configuration for that seed, is taken from that file with its
+shipped logs (``shipped_members``), not trained again: a shipped agent gains seeds on a checkout that never held its
+earlier runs (``--seeds 0,1,2`` after ``--seeds 0``).
+
 Order: agents whose runs are finished first, then by the environment steps still to train (a DDPG step counted
 twice), so the files land incrementally; each is shipped as soon as it is measured. Several copies may run at once
 on disjoint work (``results.json`` is updated under a file lock).
@@ -67,6 +72,8 @@ from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+import numpy as np  # noqa: E402
+
 import deck_sim  # noqa: E402
 from deck_sim.agents import AGENTS, names, recipe_name, training_algo  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
@@ -82,6 +89,7 @@ from deck_sim.policies import (  # noqa: E402
 )
 from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
+from training.config import ConfigError, TrainConfig  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
@@ -139,22 +147,79 @@ def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
     return tuple(int(m["config"]["seed"]) for m in meta.get("members") or [meta])
 
 
-def ship(runs: list[Path], dest: Path) -> None:
+def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
     """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``), or with several
     runs an ``EnsemblePolicy`` of their shipped actors, which must be runs of one recipe and budget (a folder
-    finished by another command with other ``--steps`` is refused, not averaged in)."""
-    if len(runs) == 1:
+    finished by another command with other ``--steps`` is refused, not averaged in). An actor of the file shipped
+    before (``shipped_members``) stands for a run whose folder is not here."""
+    if len(runs) == 1 and isinstance(runs[0], Path):
         tmp = dest.with_name(dest.name + ".tmp")
         shutil.copyfile(shipped_actor(runs[0]), tmp)
         os.replace(tmp, dest)
         return
-    members = [LearnedPolicy.load(shipped_actor(r)) for r in runs]
+    members = [r if isinstance(r, LearnedPolicy) else LearnedPolicy.load(shipped_actor(r)) for r in runs]
     runs_of = {(m.meta["config"].get("extra", {}).get("recipe"), int(m.meta["config"]["total_steps"]),
                 m.meta["algo"], m.meta["scene"]) for m in members}
     if len(runs_of) > 1:
         raise SystemExit(f"{dest}: the runs {[str(r) for r in runs]} are not one recipe and budget "
                          f"(recipe, steps, agent, scene: {sorted(runs_of, key=str)}); train them again or remove one")
+    if len(members) == 1:  # one actor of an ensemble shipped before, on its own
+        tmp = dest.with_name(dest.name + ".tmp.npz")
+        try:
+            np.savez_compressed(tmp, meta=np.array(json.dumps(members[0].meta)), **members[0].arrays)
+            os.replace(tmp, dest)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return
     EnsemblePolicy(members, source=str(dest)).save(dest)
+
+
+def shipped_members(dest: Path) -> dict[int, LearnedPolicy]:
+    """The actors of the file shipped at ``dest`` by training seed: an ensemble's members, or its one actor; empty
+    when nothing is shipped there."""
+    if not dest.exists():
+        return {}
+    policy = load_actor(dest)
+    members = policy.members if isinstance(policy, EnsemblePolicy) else [policy]
+    return {int(m.meta["config"]["seed"]): m for m in members if isinstance(m, LearnedPolicy)}
+
+
+def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, ...], runs: list[Path],
+               fields: dict[str, Any]) -> dict[int, LearnedPolicy]:
+    """The seeds to take from the file shipped at ``dest`` rather than train: those whose run folder is not here
+    (no final ``actor.npz``, no checkpoint to resume) and whose shipped actor was trained with the configuration
+    the recipe gives that seed now (``run_config``), each with its actor. A shipped actor trained otherwise (another
+    budget, or a recipe changed since) is not kept, and the script says so: that seed trains again."""
+    shipped = shipped_members(dest)
+    kept = {}
+    for seed, run in zip(seeds, runs, strict=True):
+        if seed not in shipped or (run / "actor.npz").exists() or (run / "checkpoint.pt").exists():
+            continue
+        want = run_config(scene, algo, steps, seed, fields).to_dict()
+        try:
+            have = TrainConfig.from_dict(shipped[seed].meta["config"]).to_dict()
+        except (ConfigError, KeyError, TypeError, ValueError) as err:
+            print(f"{scene} {algo}: the shipped actor of seed {seed} has an unreadable config ({err}); training "
+                  "that seed again", flush=True)
+            continue
+        differ = sorted(k for k in want.keys() | have.keys() if json.dumps(want.get(k)) != json.dumps(have.get(k)))
+        if differ:
+            print(f"{scene} {algo}: the shipped actor of seed {seed} was trained with other {', '.join(differ)} "
+                  "than the recipe gives now; training that seed again", flush=True)
+            continue
+        kept[seed] = shipped[seed]
+    return kept
+
+
+def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path) -> dict[int, Path]:
+    """Copy the shipped logs of ``seeds`` (``deck_sim.policies.shipped_logs``) to ``into/seed<k>/``, so that
+    ``ship_logs`` can write them back after it clears the logs folder; the folder of each seed that has them."""
+    staged = {}
+    for folder, seed in shipped_logs(algo, scene):
+        if seed in seeds:
+            staged[seed] = into / f"seed{seed}"
+            shutil.copytree(folder, staged[seed], ignore=shutil.ignore_patterns("seed*"))
+    return staged
 
 
 def best_run(runs: list[Path]) -> Path:
@@ -334,81 +399,90 @@ def main() -> None:
             if args.evaluate_only and not args.algos and not dest.exists():
                 print(f"{scene} {algo}: not shipped, not measured", flush=True)
                 continue
-            if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}):
+            seeds = seeds_given or default_seeds(scene, algo)
+            if (not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {})
+                    and set(file_seeds(load_actor(dest).meta)) >= set(seeds)):
                 print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
                 continue
-            seeds = seeds_given or default_seeds(scene, algo)
             runs = [run_folder(out, scene, algo, seed) for seed in seeds]
             todo = sum(not (r / "actor.npz").exists() for r in runs)
             cost = 0  # environment steps still to train, a DDPG step counted as two (its updates cost as much)
             if todo and not args.evaluate_only:
                 cost = todo * (args.steps or default_steps(scene, algo)) * (2 if algo in DDPG_ALGOS else 1)
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
-    for _, _, scene, algo, seeds, runs, dest in sorted(work):
-        steps = args.steps if args.steps is not None else default_steps(scene, algo)
-        if args.evaluate_only:
-            if not dest.exists():
-                raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
-        else:
-            for seed, run in zip(seeds, runs, strict=True):
-                train(run, scene, algo, steps, seed, fields)
-                held_out_record(run, args.episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
-            if algo in DDPG_ALGOS:
-                ship(runs, dest)
-            else:  # one run, the others' logs beside it
-                chosen = runs.index(best_run(runs))
-                ship([runs[chosen]], dest)
-                order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
-                runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)
-            ship_logs(runs, seeds, scene, algo, args.episodes_per_run)
-        t0 = time.perf_counter()
-        summary = held_out(dest, scene, args.episodes)
-        meta = load_actor(dest).meta
-        seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
-        # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
-        shipped_runs = shipped_logs(algo, scene)
-        logs = [folder for folder, _ in shipped_runs]
-        trained = sorted({s for _, s in shipped_runs if s is not None} | set(seeds))
-        # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
-        # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
-        if len(logs) != len(trained):
-            logs = [r for r in runs if (r / "eval.csv").exists()]
-        if len(logs) == len(trained):  # every run's log, or the sum would leave a run out
-            wall = sum(_train_wall(d) for d in logs)
-        else:
-            wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
-            print(f"{scene} {algo}: {len(logs)} training logs for {len(trained)} runs; training time kept as "
-                  f"recorded ({wall:.0f} s)", flush=True)
-        record = {
-            "algo": algo,
-            "episodes": args.episodes,
-            "held_out_seed": HELD_OUT_SEED,
-            "success": summary["goal_rate"],
-            "collision": summary["collision_rate"],
-            "timeout": summary["timeout_rate"],
-            "off_surface": summary["off_surface_rate"],
-            "mean_reward": summary["mean_reward"],
-            "path_ratio": summary["path_ratio"],
-            "turning_angle_deg": summary["turning_angle_deg"],
-            "predictor": str(meta.get("predictor", "none")),
-            "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
-            "train_steps": int(meta["config"]["total_steps"]),
-            "selected_at_step": int(meta["trained_steps"]),
-            "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
-            "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
-            "train_wall_s": wall,
-            "seeds": list(seeds),
-            "trained_seeds": trained,  # (a stable-baselines3 agent ships the best of these runs)
-            "file_kib": dest.stat().st_size / 1024,
-            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-        }
-        with locked_report() as report:  # read just before writing: another run may have finished meanwhile
-            report.setdefault(scene, {})[algo] = record
-        print(
-            f"{scene} {algo}: held-out success {100 * summary['goal_rate']:.1f} % over {args.episodes} episodes "
-            f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
-            flush=True,
-        )
+    with tempfile.TemporaryDirectory() as staging:  # the shipped logs of seeds kept from a shipped file
+        for _, _, scene, algo, seeds, runs, dest in sorted(work):
+            steps = args.steps if args.steps is not None else default_steps(scene, algo)
+            if args.evaluate_only:
+                if not dest.exists():
+                    raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
+            else:
+                kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields) if algo in DDPG_ALGOS else {}
+                staged = stage_shipped_logs(scene, algo, set(kept), Path(staging) / f"{scene}_{algo}")
+                for seed, run in zip(seeds, runs, strict=True):
+                    if seed in kept:
+                        print(f"{scene} {algo}: seed {seed} from the shipped {dest.name} (no run folder {run})",
+                              flush=True)
+                        continue
+                    train(run, scene, algo, steps, seed, fields)
+                    held_out_record(run, args.episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
+                if algo in DDPG_ALGOS:
+                    ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest)
+                    runs = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
+                else:  # one run, the others' logs beside it
+                    chosen = runs.index(best_run(runs))
+                    ship([runs[chosen]], dest)
+                    order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
+                    runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)
+                ship_logs(runs, seeds, scene, algo, args.episodes_per_run)
+            t0 = time.perf_counter()
+            summary = held_out(dest, scene, args.episodes)
+            meta = load_actor(dest).meta
+            seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
+            # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
+            shipped_runs = shipped_logs(algo, scene)
+            logs = [folder for folder, _ in shipped_runs]
+            trained = sorted({s for _, s in shipped_runs if s is not None} | set(seeds))
+            # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
+            # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
+            if len(logs) != len(trained):
+                logs = [r for r in runs if (r / "eval.csv").exists()]
+            if len(logs) == len(trained):  # every run's log, or the sum would leave a run out
+                wall = sum(_train_wall(d) for d in logs)
+            else:
+                wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
+                print(f"{scene} {algo}: {len(logs)} training logs for {len(trained)} runs; training time kept as "
+                      f"recorded ({wall:.0f} s)", flush=True)
+            record = {
+                "algo": algo,
+                "episodes": args.episodes,
+                "held_out_seed": HELD_OUT_SEED,
+                "success": summary["goal_rate"],
+                "collision": summary["collision_rate"],
+                "timeout": summary["timeout_rate"],
+                "off_surface": summary["off_surface_rate"],
+                "mean_reward": summary["mean_reward"],
+                "path_ratio": summary["path_ratio"],
+                "turning_angle_deg": summary["turning_angle_deg"],
+                "predictor": str(meta.get("predictor", "none")),
+                "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
+                "train_steps": int(meta["config"]["total_steps"]),
+                "selected_at_step": int(meta["trained_steps"]),
+                "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
+                "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
+                "train_wall_s": wall,
+                "seeds": list(seeds),
+                "trained_seeds": trained,  # (a stable-baselines3 agent ships the best of these runs)
+                "file_kib": dest.stat().st_size / 1024,
+                "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+            }
+            with locked_report() as report:  # read just before writing: another run may have finished meanwhile
+                report.setdefault(scene, {})[algo] = record
+            print(
+                f"{scene} {algo}: held-out success {100 * summary['goal_rate']:.1f} % over {args.episodes} episodes "
+                f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
+                flush=True,
+            )
 
 
 def _train_wall(run: Path) -> float:

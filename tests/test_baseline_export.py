@@ -302,3 +302,54 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
     assert dest.read_bytes() == (runs[0] / "actor.npz").read_bytes()
     assert script.file_seeds(load_actor(dest).meta) == (0,)
     assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_a_shipped_agent_gains_seeds_without_its_earlier_run_folders(tmp_path, monkeypatch, capsys):
+    """``scripts/train_shipped.py`` on a checkout without the run folders of a shipped MDDPG: each seed whose actor
+    the shipped file holds, trained with the recipe's configuration, is taken from the file with its shipped logs
+    (not trained again); a seed with a run folder here, or trained with another budget, is not."""
+    from deck_sim.policies import registry, shipped_policy_path
+
+    script = _train_shipped()
+    shipped = shipped_policy_path("mddpg-reward", "deck1")
+    members = script.shipped_members(shipped)
+    assert sorted(members) == [0, 1, 2]
+    steps = script.default_steps("deck1", "mddpg-reward")
+    runs = [script.run_folder(tmp_path / "runs", "deck1", "mddpg-reward", s) for s in (0, 1, 2)]
+    kept = script.kept_seeds(shipped, "deck1", "mddpg-reward", steps, (0, 1, 2), runs, {})
+    assert sorted(kept) == [0, 1, 2]  # the shipped actors are what the recipe trains for these seeds
+    runs[1].mkdir(parents=True)
+    (runs[1] / "checkpoint.pt").write_bytes(b"")  # a run under way here is resumed, not replaced
+    assert sorted(script.kept_seeds(shipped, "deck1", "mddpg-reward", steps, (0, 1, 2), runs, {})) == [0, 2]
+    assert script.kept_seeds(shipped, "deck1", "mddpg-reward", steps // 2, (0, 2), [runs[0], runs[2]], {}) == {}
+    assert "seed 0 was trained with other total_steps" in capsys.readouterr().out
+
+    # the shipped logs of the kept seeds survive ship_logs' clearing of the logs folder
+    monkeypatch.setattr(registry, "TRAINED_DIR", tmp_path / "trained")
+    logs = tmp_path / "trained" / "logs" / "deck1_mddpg-reward"
+    shutil.copytree(shipped.parent / "logs" / "deck1_mddpg-reward", logs)
+    before = {s: (f / "eval.csv").read_text() for f, s in shipped_logs("mddpg-reward", "deck1")}
+    assert sorted(before) == [0, 1, 2]
+    staged = script.stage_shipped_logs("deck1", "mddpg-reward", {0, 2}, tmp_path / "staging")
+    assert sorted(staged) == [0, 2] and not list(staged[0].glob("seed*"))
+    new_run = tmp_path / "runs" / "deck1-reward-mddpg-seed3"
+    new_run.mkdir()
+    (new_run / "eval.csv").write_text("step,wall_s,success\n1000,60,0.5\n")
+    (new_run / "config.json").write_text(json.dumps({"seed": 3}))
+    script.ship_logs([staged[0], new_run, staged[2]], (0, 3, 2), "deck1", "mddpg-reward")
+    after = dict((s, f) for f, s in shipped_logs("mddpg-reward", "deck1"))
+    assert sorted(after) == [0, 2, 3] and after[0] == logs
+    assert (after[0] / "eval.csv").read_text() == before[0] and (after[2] / "eval.csv").read_text() == before[2]
+
+    # the file: the kept members as they were, alone or joined
+    dest = tmp_path / "deck1_mddpg-reward.npz"
+    script.ship([members[0], members[2]], dest)
+    joined = load_actor(dest)
+    assert isinstance(joined, EnsemblePolicy) and script.file_seeds(joined.meta) == (0, 2)
+    script.ship([members[1]], dest)
+    alone = load_actor(dest)
+    assert isinstance(alone, LearnedPolicy) and script.file_seeds(alone.meta) == (1,)
+    env = deck_sim.load("deck1", seed=3, **alone.scene_overrides)
+    observation = env.reset().observation
+    np.testing.assert_array_equal(alone.act(observation), members[1].act(observation))
+    assert not list(tmp_path.glob("*.tmp*"))
