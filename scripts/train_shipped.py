@@ -202,7 +202,8 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
             print(f"{scene} {algo}: the shipped actor of seed {seed} has an unreadable config ({err}); training "
                   "that seed again", flush=True)
             continue
-        differ = sorted(k for k in want.keys() | have.keys() if json.dumps(want.get(k)) != json.dumps(have.get(k)))
+        differ = sorted(k for k in want.keys() | have.keys()
+                        if json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
         if differ:
             print(f"{scene} {algo}: the shipped actor of seed {seed} was trained with other {', '.join(differ)} "
                   "than the recipe gives now; training that seed again", flush=True)
@@ -211,14 +212,18 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
     return kept
 
 
-def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path) -> dict[int, Path]:
+def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path, episodes: int = 100) -> dict[int, Path]:
     """Copy the shipped logs of ``seeds`` (``deck_sim.policies.shipped_logs``) to ``into/seed<k>/``, so that
-    ``ship_logs`` can write them back after it clears the logs folder; the folder of each seed that has them."""
+    ``ship_logs`` can write them back after it clears the logs folder; the folder of each seed that has them. A seed
+    without its measurement on ``episodes`` held-out episodes (shipped with another ``--episodes-per-run``) is
+    named: ``scripts/make_results.py`` leaves it out of the reward-alone comparison until its run is measured."""
     staged = {}
     for folder, seed in shipped_logs(algo, scene):
         if seed in seeds:
             staged[seed] = into / f"seed{seed}"
             shutil.copytree(folder, staged[seed], ignore=shutil.ignore_patterns("seed*"))
+            if not (staged[seed] / held_out_file(episodes)).exists():
+                print(f"{scene} {algo}: the shipped logs of seed {seed} hold no {held_out_file(episodes)}", flush=True)
     return staged
 
 
@@ -400,25 +405,29 @@ def main() -> None:
                 print(f"{scene} {algo}: not shipped, not measured", flush=True)
                 continue
             seeds = seeds_given or default_seeds(scene, algo)
-            if (not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {})
-                    and set(file_seeds(load_actor(dest).meta)) >= set(seeds)):
+            in_file = set(shipped_members(dest)) if algo in DDPG_ALGOS else set()
+            gains = bool(in_file) and in_file < set(seeds)  # MDDPG or DDPG shipped with some of the seeds asked for
+            if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}) and not gains:
                 print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
                 continue
             runs = [run_folder(out, scene, algo, seed) for seed in seeds]
-            todo = sum(not (r / "actor.npz").exists() for r in runs)
+            todo = sum(not (r / "actor.npz").exists() and s not in in_file for s, r in zip(seeds, runs, strict=True))
             cost = 0  # environment steps still to train, a DDPG step counted as two (its updates cost as much)
             if todo and not args.evaluate_only:
                 cost = todo * (args.steps or default_steps(scene, algo)) * (2 if algo in DDPG_ALGOS else 1)
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
-    with tempfile.TemporaryDirectory() as staging:  # the shipped logs of seeds kept from a shipped file
-        for _, _, scene, algo, seeds, runs, dest in sorted(work):
+    for _, _, scene, algo, seeds, runs, dest in sorted(work):
+        staging = None  # the shipped logs of the seeds kept from the shipped file, while they are shipped again
+        try:
             steps = args.steps if args.steps is not None else default_steps(scene, algo)
             if args.evaluate_only:
                 if not dest.exists():
                     raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
             else:
                 kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields) if algo in DDPG_ALGOS else {}
-                staged = stage_shipped_logs(scene, algo, set(kept), Path(staging) / f"{scene}_{algo}")
+                if kept:
+                    staging = Path(tempfile.mkdtemp(prefix=f"deck_sim-shipped-logs-{scene}_{algo}-"))
+                staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), args.episodes_per_run)
                 for seed, run in zip(seeds, runs, strict=True):
                     if seed in kept:
                         print(f"{scene} {algo}: seed {seed} from the shipped {dest.name} (no run folder {run})",
@@ -483,6 +492,13 @@ def main() -> None:
                 f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
                 flush=True,
             )
+        except BaseException:
+            if staging is not None:
+                print(f"{scene} {algo}: stopped; a copy of the shipped logs of the seeds kept from {dest.name} is in "
+                      f"{staging} (they are also in git)", flush=True)
+            raise
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
 
 
 def _train_wall(run: Path) -> float:

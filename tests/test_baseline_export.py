@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -353,3 +355,70 @@ def test_a_shipped_agent_gains_seeds_without_its_earlier_run_folders(tmp_path, m
     observation = env.reset().observation
     np.testing.assert_array_equal(alone.act(observation), members[1].act(observation))
     assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp_path, monkeypatch, capsys):
+    """The whole command on a checkout without run folders: MDDPG shipped with seed 0 gains seed 2 (trained here;
+    seed 0 taken from the file, not trained again, its logs kept), while agents shipped with all their recipe's
+    seeds (MDDPG's three, DQN's chosen run of three) are skipped, and a shipped ensemble is not cut down to
+    other seeds without ``--redo``."""
+    import sys
+
+    from deck_sim.policies import registry
+
+    script = _train_shipped()
+    trained = tmp_path / "trained"
+    (trained / "logs").mkdir(parents=True)
+    for algo in ("mddpg-reward", "dqn-reward"):
+        shutil.copyfile(registry.TRAINED_DIR / f"deck1_{algo}.npz", trained / f"deck1_{algo}.npz")
+        shutil.copytree(registry.TRAINED_DIR / "logs" / f"deck1_{algo}", trained / "logs" / f"deck1_{algo}")
+    report = json.loads((registry.TRAINED_DIR / "results.json").read_text())
+    (trained / "results.json").write_text(json.dumps({"deck1": {a: report["deck1"][a]
+                                                                for a in ("mddpg-reward", "dqn-reward")}}))
+    monkeypatch.setattr(registry, "TRAINED_DIR", trained)
+    monkeypatch.setattr(script, "TRAINED_DIR", trained)
+    monkeypatch.setattr(script, "write_readme", lambda report: None)
+    monkeypatch.setattr(script, "held_out_record", lambda run, episodes: None)
+    members = script.shipped_members(trained / "deck1_mddpg-reward.npz")
+    source = tmp_path / "source"  # the runs' logs as shipped, where the fake training finds them
+    shutil.copytree(trained / "logs" / "deck1_mddpg-reward", source)
+    source_logs = {0: source, 1: source / "seed1", 2: source / "seed2"}
+    calls = []
+
+    def fake_train(run, scene, algo, steps, seed, fields):  # a finished run of that seed, as training leaves it
+        calls.append((algo, seed))
+        run.mkdir(parents=True)
+        member = members[seed]
+        np.savez(run / "actor_best.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
+        shutil.copyfile(run / "actor_best.npz", run / "actor.npz")
+        for name in ("eval.csv", "config.json", "heldout_100.json"):
+            shutil.copyfile(source_logs[seed] / name, run / name)
+
+    monkeypatch.setattr(script, "train", fake_train)
+    out = tmp_path / "runs"
+
+    def main(*argv):
+        monkeypatch.setattr(sys, "argv", ["train_shipped.py", "--scenes", "deck1", "--out", str(out), *argv])
+        script.main()
+        return capsys.readouterr().out
+
+    said = main("--algos", "mddpg-reward,dqn-reward")
+    assert said.count("shipped and measured already") == 2 and calls == []
+    said = main("--algos", "mddpg-reward", "--seeds", "0,3")  # not a superset of the file's seeds 0, 1, 2
+    assert "shipped and measured already" in said and calls == []
+
+    script.ship([members[0]], trained / "deck1_mddpg-reward.npz")  # as shipped with --seeds 0
+    script.ship_logs([source_logs[0]], (0,), "deck1", "mddpg-reward")
+    seed0 = (trained / "logs" / "deck1_mddpg-reward" / "eval.csv").read_text()
+    said = main("--algos", "mddpg-reward", "--seeds", "0,2", "--episodes", "2")
+    assert calls == [("mddpg-reward", 2)]  # seed 0 came from the shipped file
+    assert "seed 0 from the shipped deck1_mddpg-reward.npz" in said
+    shipped = load_actor(trained / "deck1_mddpg-reward.npz")
+    assert isinstance(shipped, EnsemblePolicy) and script.file_seeds(shipped.meta) == (0, 2)
+    logs = dict((s, f) for f, s in shipped_logs("mddpg-reward", "deck1"))
+    assert sorted(logs) == [0, 2] and (logs[0] / "eval.csv").read_text() == seed0
+    record = json.loads((trained / "results.json").read_text())["deck1"]["mddpg-reward"]
+    assert record["seeds"] == [0, 2] and record["episodes"] == 2
+    walls = [script._train_wall(source_logs[s]) for s in (0, 2)]
+    assert record["train_wall_s"] == pytest.approx(sum(walls))
+    assert not list(Path(tempfile.gettempdir()).glob("deck_sim-shipped-logs-deck1_mddpg-reward-*"))
