@@ -24,6 +24,11 @@ a second table measures the actor each run ships on the held-out episodes of ``d
 + i; ``training.heldout``, cached in the run folder as ``heldout_<N>.json``), with success, collisions, path ratio and
 turning angle: the figures the regimes and the paper's tables are compared by.
 
+With ``--shipped`` (recipe mode) a seed whose run folder holds no evaluation and no checkpoint is read from the
+logs shipped beside the recipe's agent in ``deck_sim/trained`` (``deck_sim.policies.shipped_logs``: ``eval.csv``,
+``config.json`` and the cached ``heldout_<N>.json``) when that run had the same budget, not trained: the tables of
+runs that finished on other machines, once ``scripts/train_shipped.py`` shipped them.
+
 Beside each arm's mean over seeds, each table gives the 95 % interval of its success over seeds (Student's t, clipped
 to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
 for each neighbour pair of the paper's ranking MDDPG > DDPG > DQN > A2C in recipe mode, it prints the difference of
@@ -89,6 +94,9 @@ def main() -> None:
                         help="train up to this many runs at once, each in its own process with its progress in "
                              "<run folder>.log (default 1: one after another, progress here)")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
+    parser.add_argument("--shipped", action="store_true",
+                        help="with --recipe: read a seed whose run folder is not here from the logs shipped beside "
+                             "the recipe's agent in deck_sim/trained (same budget), rather than train it")
     args = parser.parse_args()
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
@@ -96,6 +104,8 @@ def main() -> None:
         recipe = load_recipe(args.recipe) if args.recipe else None
     except ConfigError as err:
         raise SystemExit(str(err)) from err
+    if args.shipped and recipe is None:
+        raise SystemExit("--shipped reads the logs shipped with a recipe's agents: give --recipe")
     if recipe is not None and args.scene not in (None, recipe.scene):
         raise SystemExit(f"--recipe {recipe.name} trains on {recipe.scene}; drop --scene {args.scene}")
     scene = recipe.scene if recipe is not None else (args.scene or "deck1")
@@ -114,7 +124,11 @@ def main() -> None:
     planned = [(arm, seed, Path(args.out) / f"{prefix}-{arm}-seed{seed}")
                for arm in arms for seed in (seeds_given or (list(recipe.seeds(arm)) if recipe else [0]))]
     to_train = []
+    source = shipped_sources(recipe, planned, args.steps) if args.shipped else {}
     for arm, seed, run in planned:
+        if (arm, seed) in source:
+            print(f"{run.name}: read from the shipped logs {source[arm, seed]}", flush=True)
+            continue
         if not (run / "actor.npz").exists() and not args.no_train:
             try:
                 cfg = run_config(recipe, arm, scene, seed, args)
@@ -124,10 +138,11 @@ def main() -> None:
             to_train.append((arm, seed, run, cfg, resume))
     train_runs(to_train, args.jobs)
     for arm, seed, run in planned:
+        run = source.get((arm, seed), run)
         if not (run / "eval.csv").exists() or not read_eval(run):
             print(f"{run}: no evaluation yet, left out", flush=True)
             continue
-        if not (run / "actor.npz").exists():
+        if not (run / "actor.npz").exists() and (arm, seed) not in source:  # (only finished runs are shipped)
             unfinished.append(f"{run.name} (at step {read_eval(run)[-1]['step']:.0f})")
         curves.setdefault(arm, []).append(read_eval(run))
         seeds_of.setdefault(arm, []).append(seed)
@@ -199,6 +214,38 @@ def main() -> None:
     plot.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(plot, dpi=110)
     print(f"wrote {plot}")
+
+
+def shipped_sources(recipe: object, planned: list[tuple[str, int, Path]], steps: int | None
+                    ) -> dict[tuple[str, int], Path]:
+    """For ``--shipped``: the planned runs (arm, seed, run folder) to read from the logs shipped beside the
+    recipe's agent in ``deck_sim/trained`` (``deck_sim.policies.shipped_logs``), each ``(arm, seed)`` with its
+    logs folder: those whose run folder holds no evaluation and no checkpoint and whose shipped run had this budget
+    (``steps``, or the recipe's)."""
+    from deck_sim.agents import LEARNED, recipe_name, training_algo
+    from deck_sim.policies import shipped_logs
+
+    scene = recipe.scene
+    logs: dict[str, dict[int, Path]] = {}
+    for agent in LEARNED:
+        if recipe_name(agent, scene) == recipe.name:
+            logs[training_algo(agent)] = {s: f for f, s in shipped_logs(agent, scene) if s is not None}
+    found = {}
+    for arm, seed, run in planned:
+        folder = logs.get(arm, {}).get(seed)
+        here = any((run / name).exists() for name in ("eval.csv", "checkpoint.pt", "model.zip"))
+        if folder is None or here:
+            continue
+        try:
+            budget = int(json.loads((folder / "config.json").read_text(encoding="utf-8"))["total_steps"])
+        except (OSError, ValueError, KeyError, TypeError):
+            budget = None
+        if budget != (steps or recipe.steps(arm)):
+            print(f"{run.name}: the shipped run {folder} trained {budget} steps, not {steps or recipe.steps(arm)}; "
+                  "not read", flush=True)
+            continue
+        found[arm, seed] = folder
+    return found
 
 
 class TrainingError(RuntimeError):
@@ -398,7 +445,7 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
     """Print and return each arm's runs measured on ``episodes`` held-out episodes of ``docs/results.md``
     (``training.heldout.held_out``: the actor each run ships, evaluated once and cached in the run folder): the
     mean success over seeds with its 95 % interval over seeds, each seed's, collisions, path ratio and turning."""
-    from training.heldout import HeldOutError, held_out
+    from training.heldout import HeldOutError, held_out, held_out_file
 
     whose = "the episodes of docs/results.md" if episodes == 100 else "docs/results.md's 100 and their continuation"
     if episodes < 100:
@@ -416,7 +463,12 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
                 records.append(held_out(run, episodes, per_episode=True))
                 seeds.append(seed)
             except HeldOutError as err:
-                print(f"{err}; left out", flush=True)
+                cached = run / held_out_file(episodes)  # shipped logs: the record without the actor
+                if (run / "actor.npz").exists() or not cached.exists():
+                    print(f"{err}; left out", flush=True)
+                    continue
+                records.append(json.loads(cached.read_text(encoding="utf-8")))
+                seeds.append(seed)
         if not records:
             continue
         each = [r["success"] for r in records]

@@ -47,6 +47,36 @@ def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_differe
     assert (tmp_path / "learning_deck1-reward.png").stat().st_size > 0
 
 
+def test_shipped_logs_give_the_documented_tables_of_runs_that_finished_elsewhere(tmp_path):
+    """``--shipped`` reads each seed whose run folder is not here from the logs shipped beside the recipe's agent:
+    deck 1's reward-alone recipe, whose twelve runs no checkout holds, prints the tables of docs/benchmarks.md; a
+    seed with a run of its own here, or another budget, is not read from them."""
+    env = {**os.environ, "MUJOCO_GL": "disable"}
+
+    def report(*extra: str) -> str:
+        done = subprocess.run([sys.executable, "benchmarks/learning.py", "--recipe", "deck1-reward", "--no-train",
+                               "--shipped", "--out", str(tmp_path), *extra],
+                              cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    out = report()
+    assert "deck1-reward-a2c-seed2: read from the shipped logs" in out and "unfinished" not in out
+    rows = [line for line in out.splitlines() if line.startswith(("| mddpg", "| ddpg", "| dqn", "| a2c", "mddpg -",
+                                                                  "ddpg -", "dqn -"))]
+    assert len(rows) == 4 + 3 + 4 + 3
+    documented = (ROOT / "docs" / "benchmarks.md").read_text(encoding="utf-8")
+    assert [row for row in rows if row not in documented] == []
+    (tmp_path / "deck1-reward-mddpg-seed0").mkdir()
+    (tmp_path / "deck1-reward-mddpg-seed0" / "checkpoint.pt").write_bytes(b"")  # a run of its own, under way
+    out = report("--arms", "mddpg")
+    assert "deck1-reward-mddpg-seed0: read from" not in out and "| mddpg | 2 |" in out
+    assert "trained 1000000 steps, not 300000; not read" in report("--arms", "ddpg", "--steps", "300000")
+    done = subprocess.run([sys.executable, "benchmarks/learning.py", "--scene", "deck1", "--no-train", "--shipped",
+                           "--out", str(tmp_path)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0 and "--shipped reads the logs shipped with a recipe's agents" in done.stderr
+
+
 def test_unknown_recipe_is_refused_by_name(tmp_path):
     done = subprocess.run(
         [sys.executable, "benchmarks/learning.py", "--recipe", "harbour", "--no-train", "--out", str(tmp_path)],
