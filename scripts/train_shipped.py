@@ -39,7 +39,9 @@ again without training).
 A seed of MDDPG or DDPG whose run folder is not here (no ``actor.npz``, no checkpoint) but whose actor is in the
 file already shipped, trained with the recipe's configuration for that seed, is taken from that file with its
 shipped logs (``shipped_members``), not trained again: a shipped agent gains seeds on a checkout that never held its
-earlier runs (``--seeds 0,1,2`` after ``--seeds 0``).
+earlier runs (``--seeds 0,1,2`` after ``--seeds 0``). For DQN and A2C such a seed's shipped logs (same budget) take
+part in the choice of the run again (``kept_logs``): the shipped file stays if it is still the best, or a new run
+replaces it.
 
 Order: agents whose runs are finished first, then by the environment steps still to train (a DDPG step counted
 twice), so the files land incrementally; each is shipped as soon as it is measured. Several copies may run at once
@@ -209,6 +211,28 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
                   "than the recipe gives now; training that seed again", flush=True)
             continue
         kept[seed] = shipped[seed]
+    return kept
+
+
+def kept_logs(scene: str, algo: str, steps: int, seeds: tuple[int, ...], runs: list[Path]) -> set[int]:
+    """For DQN and A2C (which ship one chosen run): the seeds whose run folder is not here (no final ``actor.npz``,
+    no ``model.zip`` to resume) and whose logs are shipped beside the file from a run of ``steps`` steps. Their
+    periodic evaluations take part in the choice of the run again; the shipped file is the actor of the one chosen
+    before, the best of them."""
+    shipped = {seed: folder for folder, seed in shipped_logs(algo, scene)}
+    kept = set()
+    for seed, run in zip(seeds, runs, strict=True):
+        if seed not in shipped or (run / "actor.npz").exists() or (run / "model.zip").exists():
+            continue
+        try:
+            budget = int(json.loads((shipped[seed] / "config.json").read_text(encoding="utf-8"))["total_steps"])
+        except (OSError, ValueError, KeyError, TypeError):
+            budget = None
+        if budget != steps:
+            print(f"{scene} {algo}: the shipped run of seed {seed} trained {budget} steps, not {steps}; training that "
+                  "seed again", flush=True)
+            continue
+        kept.add(seed)
     return kept
 
 
@@ -405,8 +429,12 @@ def main() -> None:
                 print(f"{scene} {algo}: not shipped, not measured", flush=True)
                 continue
             seeds = seeds_given or default_seeds(scene, algo)
-            in_file = set(shipped_members(dest)) if algo in DDPG_ALGOS else set()
-            gains = bool(in_file) and in_file < set(seeds)  # MDDPG or DDPG shipped with some of the seeds asked for
+            if algo in DDPG_ALGOS:  # the seeds whose actors the shipped file holds
+                in_file = set(shipped_members(dest))
+            else:  # the seeds the shipped run was chosen from
+                record = shipped.get(scene, {}).get(algo, {}) if dest.exists() else {}
+                in_file = set(record.get("trained_seeds") or record.get("seeds") or [])
+            gains = bool(in_file) and in_file < set(seeds)  # shipped with some of the seeds asked for
             if not (args.evaluate_only or args.redo) and dest.exists() and algo in shipped.get(scene, {}) and not gains:
                 print(f"{scene} {algo}: shipped and measured already ({dest}; --redo to measure again)", flush=True)
                 continue
@@ -424,13 +452,16 @@ def main() -> None:
                 if not dest.exists():
                     raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
             else:
-                kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields) if algo in DDPG_ALGOS else {}
+                if algo in DDPG_ALGOS:
+                    kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields)
+                else:  # (their actors are not shipped: their logs alone, for the choice)
+                    kept = dict.fromkeys(kept_logs(scene, algo, steps, seeds, runs) if dest.exists() else ())
                 if kept:
                     staging = Path(tempfile.mkdtemp(prefix=f"deck_sim-shipped-logs-{scene}_{algo}-"))
                 staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), args.episodes_per_run)
                 for seed, run in zip(seeds, runs, strict=True):
                     if seed in kept:
-                        print(f"{scene} {algo}: seed {seed} from the shipped {dest.name} (no run folder {run})",
+                        print(f"{scene} {algo}: seed {seed} as shipped with {dest.name} (no run folder {run})",
                               flush=True)
                         continue
                     train(run, scene, algo, steps, seed, fields)
@@ -439,8 +470,15 @@ def main() -> None:
                     ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest)
                     runs = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
                 else:  # one run, the others' logs beside it
-                    chosen = runs.index(best_run(runs))
-                    ship([runs[chosen]], dest)
+                    candidates = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
+                    chosen = candidates.index(best_run(candidates))
+                    if seeds[chosen] not in kept:
+                        ship([runs[chosen]], dest)
+                    elif file_seeds(load_actor(dest).meta) != (seeds[chosen],):
+                        raise SystemExit(f"{scene} {algo}: the best run is seed {seeds[chosen]}, whose actor is not "
+                                         f"the shipped {dest.name}; train that seed here again (delete its logs "
+                                         f"from {shipped_log_dir(algo, scene)}) or run with its run folder")
+                    runs = candidates
                     order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
                     runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)
                 ship_logs(runs, seeds, scene, algo, args.episodes_per_run)

@@ -359,7 +359,8 @@ def test_a_shipped_agent_gains_seeds_without_its_earlier_run_folders(tmp_path, m
 
 def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp_path, monkeypatch, capsys):
     """The whole command on a checkout without run folders: MDDPG shipped with seed 0 gains seed 2 (trained here;
-    seed 0 taken from the file, not trained again, its logs kept), while agents shipped with all their recipe's
+    seed 0 taken from the file, not trained again, its logs kept), and DQN shipped from seeds 0 and 2 gains seed 1
+    (the kept seeds' logs compete again, the shipped run stays the best); agents shipped with all their recipe's
     seeds (MDDPG's three, DQN's chosen run of three) are skipped, and a shipped ensemble is not cut down to
     other seeds without ``--redo``."""
     import sys
@@ -381,18 +382,27 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     monkeypatch.setattr(script, "held_out_record", lambda run, episodes: None)
     members = script.shipped_members(trained / "deck1_mddpg-reward.npz")
     source = tmp_path / "source"  # the runs' logs as shipped, where the fake training finds them
-    shutil.copytree(trained / "logs" / "deck1_mddpg-reward", source)
-    source_logs = {0: source, 1: source / "seed1", 2: source / "seed2"}
+    for algo in ("mddpg-reward", "dqn-reward"):
+        shutil.copytree(trained / "logs" / f"deck1_{algo}", source / algo)
+    mddpg = source / "mddpg-reward"
+    source_logs = {0: mddpg, 1: mddpg / "seed1", 2: mddpg / "seed2"}
+    dqn_logs = {0: source / "dqn-reward" / "seed0", 1: source / "dqn-reward" / "seed1", 2: source / "dqn-reward"}
+    dqn_actor = tmp_path / "dqn.npz"
+    shutil.copyfile(trained / "deck1_dqn-reward.npz", dqn_actor)
     calls = []
 
     def fake_train(run, scene, algo, steps, seed, fields):  # a finished run of that seed, as training leaves it
         calls.append((algo, seed))
         run.mkdir(parents=True)
-        member = members[seed]
-        np.savez(run / "actor_best.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
+        if algo == "dqn-reward":  # (the shipped run's actor stands in for this seed's)
+            shutil.copyfile(dqn_actor, run / "actor_best.npz")
+        else:
+            member = members[seed]
+            np.savez(run / "actor_best.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
         shutil.copyfile(run / "actor_best.npz", run / "actor.npz")
+        logs = dqn_logs if algo == "dqn-reward" else source_logs
         for name in ("eval.csv", "config.json", "heldout_100.json"):
-            shutil.copyfile(source_logs[seed] / name, run / name)
+            shutil.copyfile(logs[seed] / name, run / name)
 
     monkeypatch.setattr(script, "train", fake_train)
     out = tmp_path / "runs"
@@ -412,7 +422,7 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     seed0 = (trained / "logs" / "deck1_mddpg-reward" / "eval.csv").read_text()
     said = main("--algos", "mddpg-reward", "--seeds", "0,2", "--episodes", "2")
     assert calls == [("mddpg-reward", 2)]  # seed 0 came from the shipped file
-    assert "seed 0 from the shipped deck1_mddpg-reward.npz" in said
+    assert "seed 0 as shipped with deck1_mddpg-reward.npz" in said
     shipped = load_actor(trained / "deck1_mddpg-reward.npz")
     assert isinstance(shipped, EnsemblePolicy) and script.file_seeds(shipped.meta) == (0, 2)
     logs = dict((s, f) for f, s in shipped_logs("mddpg-reward", "deck1"))
@@ -422,3 +432,17 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     walls = [script._train_wall(source_logs[s]) for s in (0, 2)]
     assert record["train_wall_s"] == pytest.approx(sum(walls))
     assert not list(Path(tempfile.gettempdir()).glob("deck_sim-shipped-logs-deck1_mddpg-reward-*"))
+
+    # DQN, shipped as the best of seeds 0 and 2, gains seed 1: the kept seeds' logs take part in the choice again,
+    # and the shipped run (seed 2, the best of the three) stays
+    script.ship_logs([dqn_logs[2], dqn_logs[0]], (2, 0), "deck1", "dqn-reward")
+    with script.locked_report() as report:
+        report["deck1"]["dqn-reward"]["trained_seeds"] = [0, 2]
+    before = (trained / "deck1_dqn-reward.npz").read_bytes()
+    calls.clear()
+    said = main("--algos", "dqn-reward", "--seeds", "0,1,2", "--episodes", "2")
+    assert calls == [("dqn-reward", 1)] and "seed 2 as shipped with deck1_dqn-reward.npz" in said
+    assert (trained / "deck1_dqn-reward.npz").read_bytes() == before
+    assert [s for _, s in shipped_logs("dqn-reward", "deck1")] == [2, 0, 1]
+    record = json.loads((trained / "results.json").read_text())["deck1"]["dqn-reward"]
+    assert record["seeds"] == [2] and record["trained_seeds"] == [0, 1, 2]
