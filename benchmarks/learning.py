@@ -26,8 +26,9 @@ turning angle: the figures the regimes and the paper's tables are compared by.
 
 With ``--shipped`` (recipe mode) a seed whose run folder holds no evaluation and no checkpoint is read from the
 logs shipped beside the recipe's agent in ``deck_sim/trained`` (``deck_sim.policies.shipped_logs``: ``eval.csv``,
-``config.json`` and the cached ``heldout_<N>.json``) when that run had the same budget, not trained: the tables of
-runs that finished on other machines, once ``scripts/train_shipped.py`` shipped them.
+``config.json`` and the cached ``heldout_<N>.json``) when that run was trained with the configuration this command
+would train, not trained again: the tables of runs that finished on other machines, once
+``scripts/train_shipped.py`` shipped them.
 
 Beside each arm's mean over seeds, each table gives the 95 % interval of its success over seeds (Student's t, clipped
 to 0-100 %). For every pair of arms that differ only in ``mddpg`` against ``ddpg`` (the prediction ablation), and
@@ -54,6 +55,7 @@ import signal  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from multiprocessing import resource_tracker  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -65,7 +67,7 @@ from deck_sim.evaluation import DEFAULT_SEED  # noqa: E402
 from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
 from training.config import ConfigError, arm_config  # noqa: E402
 from training.loop import Trainer  # noqa: E402
-from training.recipes import load_recipe  # noqa: E402
+from training.recipes import config_differences, load_recipe  # noqa: E402
 
 
 def read_eval(run: Path) -> list[dict[str, float]]:
@@ -96,7 +98,7 @@ def main() -> None:
     parser.add_argument("--plot", default=None, help="PNG of the curves (default <out>/learning_<scene>.png)")
     parser.add_argument("--shipped", action="store_true",
                         help="with --recipe: read a seed whose run folder is not here from the logs shipped beside "
-                             "the recipe's agent in deck_sim/trained (same budget), rather than train it")
+                             "the recipe's agent in deck_sim/trained (same configuration), rather than train it")
     args = parser.parse_args()
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
@@ -124,7 +126,8 @@ def main() -> None:
     planned = [(arm, seed, Path(args.out) / f"{prefix}-{arm}-seed{seed}")
                for arm in arms for seed in (seeds_given or (list(recipe.seeds(arm)) if recipe else [0]))]
     to_train = []
-    source = shipped_sources(recipe, planned, args.steps) if args.shipped else {}
+    source = (shipped_sources(recipe, planned, lambda arm, seed: run_config(recipe, arm, scene, seed, args))
+              if args.shipped else {})
     for arm, seed, run in planned:
         if (arm, seed) in source:
             print(f"{run.name}: read from the shipped logs {source[arm, seed]}", flush=True)
@@ -174,7 +177,7 @@ def main() -> None:
         )
     print_differences(summary, arms)
     if args.held_out:
-        held = held_out_table(runs_of, args.held_out)
+        held = held_out_table(runs_of, args.held_out, set(source.values()))
         print_differences(held, arms)
         for arm, row in held.items():
             summary[arm]["held_out"] = row
@@ -216,12 +219,12 @@ def main() -> None:
     print(f"wrote {plot}")
 
 
-def shipped_sources(recipe: object, planned: list[tuple[str, int, Path]], steps: int | None
+def shipped_sources(recipe: object, planned: list[tuple[str, int, Path]], plan: Callable[[str, int], object]
                     ) -> dict[tuple[str, int], Path]:
     """For ``--shipped``: the planned runs (arm, seed, run folder) to read from the logs shipped beside the
     recipe's agent in ``deck_sim/trained`` (``deck_sim.policies.shipped_logs``), each ``(arm, seed)`` with its
-    logs folder: those whose run folder holds no evaluation and no checkpoint and whose shipped run had this budget
-    (``steps``, or the recipe's)."""
+    logs folder: those whose run folder holds no evaluation and no checkpoint and whose shipped run was trained
+    with ``plan(arm, seed)``, the configuration this command would train (``training.recipes.config_differences``)."""
     from deck_sim.agents import LEARNED, recipe_name, training_algo
     from deck_sim.policies import shipped_logs
 
@@ -236,13 +239,10 @@ def shipped_sources(recipe: object, planned: list[tuple[str, int, Path]], steps:
         here = any((run / name).exists() for name in ("eval.csv", "checkpoint.pt", "model.zip"))
         if folder is None or here:
             continue
-        try:
-            budget = int(json.loads((folder / "config.json").read_text(encoding="utf-8"))["total_steps"])
-        except (OSError, ValueError, KeyError, TypeError):
-            budget = None
-        if budget != (steps or recipe.steps(arm)):
-            print(f"{run.name}: the shipped run {folder} trained {budget} steps, not {steps or recipe.steps(arm)}; "
-                  "not read", flush=True)
+        differ = config_differences(folder, plan(arm, seed))
+        if differ:
+            print(f"{run.name}: the shipped run {folder} was trained with other {', '.join(differ)}; not read",
+                  flush=True)
             continue
         found[arm, seed] = folder
     return found
@@ -441,9 +441,11 @@ def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
               f"{', '.join(map(str, both))} ({spread})")
 
 
-def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) -> dict[str, dict]:
+def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int, shipped: set[Path] = frozenset()
+                   ) -> dict[str, dict]:
     """Print and return each arm's runs measured on ``episodes`` held-out episodes of ``docs/results.md``
-    (``training.heldout.held_out``: the actor each run ships, evaluated once and cached in the run folder): the
+    (``training.heldout.held_out``: the actor each run ships, evaluated once and cached in the run folder; for the
+    logs ``shipped`` beside an actor of ``deck_sim/trained``, which hold no actor, their cached record): the
     mean success over seeds with its 95 % interval over seeds, each seed's, collisions, path ratio and turning."""
     from training.heldout import HeldOutError, held_out, held_out_file
 
@@ -459,16 +461,19 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
     for arm, runs in runs_of.items():
         records, seeds = [], []
         for seed, run in runs:
+            if run in shipped:
+                record = shipped_record(run, episodes)
+                if record is None:
+                    print(f"{run}: no shipped {held_out_file(episodes)} of these episodes; left out", flush=True)
+                    continue
+                records.append(record)
+                seeds.append(seed)
+                continue
             try:
                 records.append(held_out(run, episodes, per_episode=True))
                 seeds.append(seed)
             except HeldOutError as err:
-                cached = run / held_out_file(episodes)  # shipped logs: the record without the actor
-                if (run / "actor.npz").exists() or not cached.exists():
-                    print(f"{err}; left out", flush=True)
-                    continue
-                records.append(json.loads(cached.read_text(encoding="utf-8")))
-                seeds.append(seed)
+                print(f"{err}; left out", flush=True)
         if not records:
             continue
         each = [r["success"] for r in records]
@@ -484,6 +489,20 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int) ->
               f"{100 * m:.1f} % | {spread} | {', '.join(f'{100 * x:.0f}' for x in each)} | "
               f"{100 * row['collision']:.1f} % | {row['path_ratio']:.3f} | {row['turning_deg']:.0f} |")
     return table
+
+
+def shipped_record(logs: Path, episodes: int) -> dict | None:
+    """The held-out record shipped in ``logs`` (``heldout_<episodes>.json``) if it is of these episodes, each
+    episode's outcome kept; else None."""
+    from training.heldout import held_out_file
+
+    try:
+        record = json.loads((logs / held_out_file(episodes)).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    fits = (isinstance(record, dict) and record.get("episodes") == episodes and record.get("seed") == DEFAULT_SEED
+            and len(record.get("goal_each") or ()) == episodes)
+    return record if fits else None
 
 
 PAPER_ORDER = ("mddpg", "ddpg", "dqn", "a2c")

@@ -39,9 +39,9 @@ again without training).
 A seed of MDDPG or DDPG whose run folder is not here (no ``actor.npz``, no checkpoint) but whose actor is in the
 file already shipped, trained with the recipe's configuration for that seed, is taken from that file with its
 shipped logs (``shipped_members``), not trained again: a shipped agent gains seeds on a checkout that never held its
-earlier runs (``--seeds 0,1,2`` after ``--seeds 0``). For DQN and A2C such a seed's shipped logs (same budget) take
-part in the choice of the run again (``kept_logs``): the shipped file stays if it is still the best, or a new run
-replaces it.
+earlier runs (``--seeds 0,1,2`` after ``--seeds 0``). For DQN and A2C such a seed's shipped logs (trained with the
+recipe's configuration) take part in the choice of the run again (``kept_logs``): the shipped file stays if it is
+still the best, or a new run replaces it (a tie goes to the lower seed, as ever).
 
 Order: agents whose runs are finished first, then by the environment steps still to train (a DDPG step counted
 twice), so the files land incrementally; each is shipped as soon as it is measured. Several copies may run at once
@@ -65,6 +65,7 @@ import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import csv  # noqa: E402
 import fcntl  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
@@ -95,7 +96,7 @@ from training.config import ConfigError, TrainConfig  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
-from training.recipes import load_recipe, recipe_names  # noqa: E402
+from training.recipes import config_differences, load_recipe, recipe_names  # noqa: E402
 
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
@@ -224,16 +225,24 @@ def kept_logs(scene: str, algo: str, steps: int, seeds: tuple[int, ...], runs: l
     for seed, run in zip(seeds, runs, strict=True):
         if seed not in shipped or (run / "actor.npz").exists() or (run / "model.zip").exists():
             continue
-        try:
-            budget = int(json.loads((shipped[seed] / "config.json").read_text(encoding="utf-8"))["total_steps"])
-        except (OSError, ValueError, KeyError, TypeError):
-            budget = None
-        if budget != steps:
-            print(f"{scene} {algo}: the shipped run of seed {seed} trained {budget} steps, not {steps}; training that "
-                  "seed again", flush=True)
+        differ = config_differences(shipped[seed], run_config(scene, algo, steps, seed, {}))
+        if differ:
+            print(f"{scene} {algo}: the shipped run of seed {seed} was trained with other {', '.join(differ)} than "
+                  "the recipe gives now; training that seed again", flush=True)
             continue
         kept.add(seed)
     return kept
+
+
+def is_shipped_run(dest: Path, logs: Path, seed: int, episodes: int) -> bool:
+    """Whether the file shipped at ``dest`` is the actor of the DQN or A2C run of ``seed`` whose logs are ``logs``:
+    its SHA-256 is the one that run's held-out record names (``heldout_<episodes>.json``), or without that record
+    the file's own seed is ``seed``."""
+    record = logs / held_out_file(episodes)
+    if record.exists():
+        digest = json.loads(record.read_text(encoding="utf-8")).get("actor_sha256")
+        return digest == hashlib.sha256(dest.read_bytes()).hexdigest()
+    return file_seeds(load_actor(dest).meta) == (seed,)
 
 
 def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path, episodes: int = 100) -> dict[int, Path]:
@@ -459,6 +468,13 @@ def main() -> None:
                 if kept:
                     staging = Path(tempfile.mkdtemp(prefix=f"deck_sim-shipped-logs-{scene}_{algo}-"))
                 staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), args.episodes_per_run)
+                if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
+                    order = sorted(kept)
+                    best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]
+                    if not is_shipped_run(dest, staged[best], best, args.episodes_per_run):
+                        raise SystemExit(f"{scene} {algo}: {dest.name} is not the actor of seed {best}, the best of "
+                                         f"the shipped runs {order}; run with their run folders, or --redo with "
+                                         "--seeds of the runs that are here")
                 for seed, run in zip(seeds, runs, strict=True):
                     if seed in kept:
                         print(f"{scene} {algo}: seed {seed} as shipped with {dest.name} (no run folder {run})",
@@ -474,10 +490,7 @@ def main() -> None:
                     chosen = candidates.index(best_run(candidates))
                     if seeds[chosen] not in kept:
                         ship([runs[chosen]], dest)
-                    elif file_seeds(load_actor(dest).meta) != (seeds[chosen],):
-                        raise SystemExit(f"{scene} {algo}: the best run is seed {seeds[chosen]}, whose actor is not "
-                                         f"the shipped {dest.name}; train that seed here again (delete its logs "
-                                         f"from {shipped_log_dir(algo, scene)}) or run with its run folder")
+                    # (else the shipped file, the best kept run's as checked before training, stays)
                     runs = candidates
                     order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
                     runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)

@@ -387,8 +387,11 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     mddpg = source / "mddpg-reward"
     source_logs = {0: mddpg, 1: mddpg / "seed1", 2: mddpg / "seed2"}
     dqn_logs = {0: source / "dqn-reward" / "seed0", 1: source / "dqn-reward" / "seed1", 2: source / "dqn-reward"}
-    dqn_actor = tmp_path / "dqn.npz"
-    shutil.copyfile(trained / "deck1_dqn-reward.npz", dqn_actor)
+    dqn = load_actor(trained / "deck1_dqn-reward.npz")
+    dqn_actor = tmp_path / "dqn.npz"  # seed 1's stand-in: the shipped run's actor, its weights scaled
+    np.savez(dqn_actor, meta=np.array(json.dumps({**dqn.meta, "config": {**dqn.meta["config"], "seed": 1}})),
+             **{k: v * 1.01 if k.startswith("w") else v for k, v in dqn.arrays.items()})
+    seed1_best = [None]  # a best periodic evaluation for seed 1 other than its shipped log's
     calls = []
 
     def fake_train(run, scene, algo, steps, seed, fields):  # a finished run of that seed, as training leaves it
@@ -403,6 +406,9 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
         logs = dqn_logs if algo == "dqn-reward" else source_logs
         for name in ("eval.csv", "config.json", "heldout_100.json"):
             shutil.copyfile(logs[seed] / name, run / name)
+        if algo == "dqn-reward" and seed1_best[0] is not None:
+            with open(run / "eval.csv", "a") as f:
+                f.write(f"1000000,60000,100,{seed1_best[0]},0.0,0.0,0.0,0.0\n")
 
     monkeypatch.setattr(script, "train", fake_train)
     out = tmp_path / "runs"
@@ -446,3 +452,24 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     assert [s for _, s in shipped_logs("dqn-reward", "deck1")] == [2, 0, 1]
     record = json.loads((trained / "results.json").read_text())["deck1"]["dqn-reward"]
     assert record["seeds"] == [2] and record["trained_seeds"] == [0, 1, 2]
+
+    def shipped_from_seeds_0_and_2():
+        script.ship_logs([dqn_logs[2], dqn_logs[0]], (2, 0), "deck1", "dqn-reward")
+        with script.locked_report() as report:
+            report["deck1"]["dqn-reward"]["trained_seeds"] = [0, 2]
+        shutil.rmtree(out / "deck1-reward-dqn-seed1")
+        calls.clear()
+
+    # a new run that beats the shipped one replaces it
+    shipped_from_seeds_0_and_2()
+    seed1_best[0] = 0.95
+    main("--algos", "dqn-reward", "--seeds", "0,1,2", "--episodes", "2")
+    assert calls == [("dqn-reward", 1)]
+    assert (trained / "deck1_dqn-reward.npz").read_bytes() == (out / "deck1-reward-dqn-seed1" / "actor_best.npz"
+                                                               ).read_bytes()
+    assert [s for _, s in shipped_logs("dqn-reward", "deck1")] == [1, 0, 2]
+    # a shipped file that is not the best kept run's actor is refused before anything trains
+    shipped_from_seeds_0_and_2()
+    with pytest.raises(SystemExit, match="is not the actor of seed 2, the best of the shipped runs"):
+        main("--algos", "dqn-reward", "--seeds", "0,1,2", "--episodes", "2")
+    assert calls == []

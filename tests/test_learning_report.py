@@ -71,7 +71,8 @@ def test_shipped_logs_give_the_documented_tables_of_runs_that_finished_elsewhere
     (tmp_path / "deck1-reward-mddpg-seed0" / "checkpoint.pt").write_bytes(b"")  # a run of its own, under way
     out = report("--arms", "mddpg")
     assert "deck1-reward-mddpg-seed0: read from" not in out and "| mddpg | 2 |" in out
-    assert "trained 1000000 steps, not 300000; not read" in report("--arms", "ddpg", "--steps", "300000")
+    assert "was trained with other total_steps; not read" in report("--arms", "ddpg", "--steps", "300000")
+    assert "no shipped heldout_400.json of these episodes; left out" in report("--arms", "a2c", "--held-out", "400")
     done = subprocess.run([sys.executable, "benchmarks/learning.py", "--scene", "deck1", "--no-train", "--shipped",
                            "--out", str(tmp_path)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode != 0 and "--shipped reads the logs shipped with a recipe's agents" in done.stderr

@@ -14,6 +14,7 @@ seed of every agent and ships the result.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,3 +180,27 @@ def _seeds(value: Any, where: str) -> tuple[int, ...]:
     if len(set(value)) < len(value):
         raise ConfigError(f"{where}: each seed once, got {value!r}")
     return tuple(value)
+
+
+def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) -> list[str]:
+    """The fields in which the run recorded in ``run_dir/config.json`` differs from ``plan`` (what ``Recipe.run``
+    returns: MDDPG's or DDPG's ``TrainConfig``, or DQN's or A2C's ``train_baseline`` keywords), sorted; empty if
+    the run is that plan's. A ``config.json`` that cannot be read as the plan's kind of config gives
+    ``["config.json"]``."""
+    from training.baseline_config import baseline_config
+    from training.baselines import saved_baseline_config
+    from training.checkpoints import CheckpointError
+
+    try:
+        if isinstance(plan, TrainConfig):
+            want, have = plan.to_dict(), TrainConfig.load(Path(run_dir) / "config.json").to_dict()
+        else:
+            fields = {k: v for k, v in plan.items() if k not in ("algo", "steps")}
+            if plan.get("steps") is not None:
+                fields["total_steps"] = plan["steps"]
+            want = baseline_config(plan["algo"], **fields).to_dict()
+            have = saved_baseline_config(run_dir).to_dict()
+    except (ConfigError, CheckpointError):
+        return ["config.json"]
+    return sorted(k for k in want.keys() | have.keys()
+                  if json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
