@@ -96,7 +96,7 @@ from training.config import ConfigError, TrainConfig  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
-from training.recipes import config_differences, load_recipe, recipe_names  # noqa: E402
+from training.recipes import config_differences, differing_fields, load_recipe, recipe_names  # noqa: E402
 
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
@@ -205,8 +205,7 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
             print(f"{scene} {algo}: the shipped actor of seed {seed} has an unreadable config ({err}); training "
                   "that seed again", flush=True)
             continue
-        differ = sorted(k for k in want.keys() | have.keys()
-                        if json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
+        differ = differing_fields(want, have)
         if differ:
             print(f"{scene} {algo}: the shipped actor of seed {seed} was trained with other {', '.join(differ)} "
                   "than the recipe gives now; training that seed again", flush=True)

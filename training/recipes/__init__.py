@@ -202,5 +202,10 @@ def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) 
             have = saved_baseline_config(run_dir).to_dict()
     except (ConfigError, CheckpointError):
         return ["config.json"]
+    return differing_fields(want, have)
+
+
+def differing_fields(want: dict[str, Any], have: dict[str, Any]) -> list[str]:
+    """The keys of two configs' ``to_dict`` forms whose values differ (a missing key counts), sorted."""
     return sorted(k for k in want.keys() | have.keys()
                   if json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
