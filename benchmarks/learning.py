@@ -447,7 +447,7 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int, sh
     (``training.heldout.held_out``: the actor each run ships, evaluated once and cached in the run folder; for the
     logs ``shipped`` beside an actor of ``deck_sim/trained``, which hold no actor, their cached record): the
     mean success over seeds with its 95 % interval over seeds, each seed's, collisions, path ratio and turning."""
-    from training.heldout import HeldOutError, held_out, held_out_file
+    from training.heldout import HeldOutError, held_out, held_out_file, shipped_held_out
 
     whose = "the episodes of docs/results.md" if episodes == 100 else "docs/results.md's 100 and their continuation"
     if episodes < 100:
@@ -462,7 +462,7 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int, sh
         records, seeds = [], []
         for seed, run in runs:
             if run in shipped:
-                record = shipped_record(run, episodes)
+                record = shipped_held_out(run, episodes)
                 if record is None:
                     print(f"{run}: no shipped {held_out_file(episodes)} of these episodes; left out", flush=True)
                     continue
@@ -489,20 +489,6 @@ def held_out_table(runs_of: dict[str, list[tuple[int, Path]]], episodes: int, sh
               f"{100 * m:.1f} % | {spread} | {', '.join(f'{100 * x:.0f}' for x in each)} | "
               f"{100 * row['collision']:.1f} % | {row['path_ratio']:.3f} | {row['turning_deg']:.0f} |")
     return table
-
-
-def shipped_record(logs: Path, episodes: int) -> dict | None:
-    """The held-out record shipped in ``logs`` (``heldout_<episodes>.json``) if it is of these episodes, each
-    episode's outcome kept; else None."""
-    from training.heldout import held_out_file
-
-    try:
-        record = json.loads((logs / held_out_file(episodes)).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    fits = (isinstance(record, dict) and record.get("episodes") == episodes and record.get("seed") == DEFAULT_SEED
-            and len(record.get("goal_each") or ()) == episodes)
-    return record if fits else None
 
 
 PAPER_ORDER = ("mddpg", "ddpg", "dqn", "a2c")

@@ -143,7 +143,7 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
     record with ``seed``, ``steps`` (trained so far), ``finished`` and ``wall_s`` (training) added; empty if the
     scene has no such recipe or no run."""
     from training.config import ConfigError
-    from training.heldout import HeldOutError, held_out, held_out_file
+    from training.heldout import HeldOutError, held_out, shipped_held_out
     from training.recipes import load_recipe
 
     try:
@@ -161,8 +161,8 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
                 record = held_out(run, episodes, workers, per_episode=True)
             except HeldOutError:
                 run = shipped.get(seed)  # the logs shipped with the actor, if it was shipped
-                if run is not None and (run / held_out_file(episodes)).exists():
-                    record = json.loads((run / held_out_file(episodes)).read_text())
+                if run is not None:
+                    record = shipped_held_out(run, episodes)
             if record is None or not (run / "eval.csv").exists():
                 continue
             with open(run / "eval.csv", newline="") as f:

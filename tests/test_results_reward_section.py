@@ -121,4 +121,16 @@ class _NoShipped:
 
 
 def test_a_scene_without_reward_runs_gives_nothing(tmp_path, make_results):
-    assert make_results.reward_runs("deck2", tmp_path, 100, workers=1) == {}
+    """The square has a reward-alone recipe but no run of it here or shipped; a scene without such a recipe has
+    none either."""
+    assert make_results.reward_runs("square", tmp_path, 100, workers=1) == {}
+    assert make_results.reward_runs("deck1-multi", tmp_path, 100, workers=1) == {}
+
+
+def test_shipped_reward_runs_are_read_without_their_run_folders(tmp_path, make_results):
+    """Deck 2's shipped reward-alone actors stand in for their run folders: each shipped seed's held-out record
+    and training log, the runs finished."""
+    runs = make_results.reward_runs("deck2", tmp_path, 100, workers=1)
+    assert set(runs) >= {"mddpg", "ddpg"}
+    for algo in ("mddpg", "ddpg"):
+        assert all(r["finished"] and r["steps"] == 1_000_000 and len(r["goal_each"]) == 100 for r in runs[algo])

@@ -32,6 +32,19 @@ def held_out_file(episodes: int | str) -> str:
     return f"heldout_{episodes}.json"
 
 
+def shipped_held_out(logs: str | Path, episodes: int) -> dict[str, Any] | None:
+    """The held-out record in a folder of logs shipped beside an actor of ``deck_sim/trained`` (no actor to measure
+    again: ``scripts/train_shipped.py`` copies a run's ``heldout_<episodes>.json`` there) if it is a record of
+    ``episodes`` episodes of the held-out stream with each episode's outcome (``goal_each``); else None."""
+    try:
+        record = json.loads((Path(logs) / held_out_file(episodes)).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    fits = (isinstance(record, dict) and record.get("episodes") == episodes and record.get("seed") == DEFAULT_SEED
+            and len(record.get("goal_each") or ()) == episodes)
+    return record if fits else None
+
+
 class HeldOutError(RuntimeError):
     """A run folder that cannot be measured (no config, no actor yet)."""
 
