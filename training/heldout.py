@@ -40,9 +40,14 @@ def shipped_held_out(logs: str | Path, episodes: int) -> dict[str, Any] | None:
         record = json.loads((Path(logs) / held_out_file(episodes)).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    fits = (isinstance(record, dict) and record.get("episodes") == episodes and record.get("seed") == DEFAULT_SEED
-            and len(record.get("goal_each") or ()) == episodes)
-    return record if fits else None
+    return record if _of_episodes(record, episodes, per_episode=True) else None
+
+
+def _of_episodes(record: Any, episodes: int, per_episode: bool) -> bool:
+    """Whether a cached record measures ``episodes`` episodes of the held-out stream (with ``per_episode``, each
+    one's outcome kept)."""
+    return (isinstance(record, dict) and record.get("episodes") == episodes and record.get("seed") == DEFAULT_SEED
+            and not (per_episode and len(record.get("goal_each") or ()) != episodes))
 
 
 class HeldOutError(RuntimeError):
@@ -94,11 +99,7 @@ def held_out(
             record = json.loads(cache.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             record = None
-        if record and (record.get("actor_sha256"), record.get("episodes"), record.get("seed")) == (
-            digest,
-            episodes,
-            DEFAULT_SEED,
-        ) and not (per_episode and len(record.get("goal_each") or ()) != episodes):
+        if record and record.get("actor_sha256") == digest and _of_episodes(record, episodes, per_episode):
             return record
     scene = str(config["scene"])
     res = evaluate(
