@@ -453,102 +453,130 @@ def main() -> None:
                 cost = todo * (args.steps or default_steps(scene, algo)) * (2 if algo in DDPG_ALGOS else 1)
             work.append((cost, len(work), scene, algo, seeds, runs, dest))
     for _, _, scene, algo, seeds, runs, dest in sorted(work):
-        staging = None  # the shipped logs of the seeds kept from the shipped file, while they are shipped again
-        try:
-            steps = args.steps if args.steps is not None else default_steps(scene, algo)
-            if args.evaluate_only:
-                if not dest.exists():
-                    raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
-            else:
-                if algo in DDPG_ALGOS:
-                    kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields)
-                else:  # (their actors are not shipped: their logs alone, for the choice)
-                    kept = dict.fromkeys(kept_logs(scene, algo, steps, seeds, runs) if dest.exists() else ())
-                if kept:
-                    staging = Path(tempfile.mkdtemp(prefix=f"deck_sim-shipped-logs-{scene}_{algo}-"))
-                staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), args.episodes_per_run)
-                if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
-                    order = sorted(kept)
-                    best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]
-                    if not is_shipped_run(dest, staged[best], best, args.episodes_per_run):
-                        raise SystemExit(f"{scene} {algo}: {dest.name} is not the actor of seed {best}, the best of "
-                                         f"the shipped runs {order}; run with their run folders, or --redo with "
-                                         "--seeds of the runs that are here")
-                for seed, run in zip(seeds, runs, strict=True):
-                    if seed in kept:
-                        print(f"{scene} {algo}: seed {seed} as shipped with {dest.name} (no run folder {run})",
-                              flush=True)
-                        continue
-                    train(run, scene, algo, steps, seed, fields)
-                    held_out_record(run, args.episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
-                if algo in DDPG_ALGOS:
-                    ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest)
-                    runs = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
-                else:  # one run, the others' logs beside it
-                    candidates = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
-                    chosen = candidates.index(best_run(candidates))
-                    if seeds[chosen] not in kept:
-                        ship([runs[chosen]], dest)
-                    # (else the shipped file, the best kept run's as checked before training, stays)
-                    runs = candidates
-                    order = [chosen, *(i for i in range(len(runs)) if i != chosen)]
-                    runs, seeds = [runs[i] for i in order], tuple(seeds[i] for i in order)
-                ship_logs(runs, seeds, scene, algo, args.episodes_per_run)
-            t0 = time.perf_counter()
-            summary = held_out(dest, scene, args.episodes)
-            meta = load_actor(dest).meta
-            seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
-            # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
-            shipped_runs = shipped_logs(algo, scene)
-            logs = [folder for folder, _ in shipped_runs]
-            trained = sorted({s for _, s in shipped_runs if s is not None} | set(seeds))
-            # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
-            # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
-            if len(logs) != len(trained):
-                logs = [r for r in runs if (r / "eval.csv").exists()]
-            if len(logs) == len(trained):  # every run's log, or the sum would leave a run out
-                wall = sum(_train_wall(d) for d in logs)
-            else:
-                wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
-                print(f"{scene} {algo}: {len(logs)} training logs for {len(trained)} runs; training time kept as "
-                      f"recorded ({wall:.0f} s)", flush=True)
-            record = {
-                "algo": algo,
-                "episodes": args.episodes,
-                "held_out_seed": HELD_OUT_SEED,
-                "success": summary["goal_rate"],
-                "collision": summary["collision_rate"],
-                "timeout": summary["timeout_rate"],
-                "off_surface": summary["off_surface_rate"],
-                "mean_reward": summary["mean_reward"],
-                "path_ratio": summary["path_ratio"],
-                "turning_angle_deg": summary["turning_angle_deg"],
-                "predictor": str(meta.get("predictor", "none")),
-                "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
-                "train_steps": int(meta["config"]["total_steps"]),
-                "selected_at_step": int(meta["trained_steps"]),
-                "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
-                "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
-                "train_wall_s": wall,
-                "seeds": list(seeds),
-                "trained_seeds": trained,  # (a stable-baselines3 agent ships the best of these runs)
-                "file_kib": dest.stat().st_size / 1024,
-                "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-            }
-            with locked_report() as report:  # read just before writing: another run may have finished meanwhile
-                report.setdefault(scene, {})[algo] = record
-            print(
-                f"{scene} {algo}: held-out success {100 * summary['goal_rate']:.1f} % over {args.episodes} episodes "
-                f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
-                flush=True,
-            )
-        except BaseException:
-            if staging is not None:
-                print(f"{scene} {algo}: stopped; a copy of the shipped logs of the seeds kept from {dest.name} is in "
-                      f"{staging} (they are also in git)", flush=True)
-            raise
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
+        steps = args.steps if args.steps is not None else default_steps(scene, algo)
+        if args.evaluate_only:
+            if not dest.exists():
+                raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
+            kept: dict[int, LearnedPolicy | None] = {}
+        elif algo in DDPG_ALGOS:
+            kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields)
+        else:  # (their actors are not shipped: their logs alone, for the choice)
+            kept = dict.fromkeys(kept_logs(scene, algo, steps, seeds, runs) if dest.exists() else ())
+        with staging_folder(scene, algo, dest, bool(kept)) as staging:
+            if not args.evaluate_only:
+                runs = train_and_ship(scene, algo, seeds, runs, dest, steps, fields, kept, staging,
+                                      args.episodes_per_run)
+            measure_and_record(scene, algo, dest, runs, args.episodes, shipped)
+
+
+@contextlib.contextmanager
+def staging_folder(scene: str, algo: str, dest: Path, needed: bool) -> Iterator[Path | None]:
+    """A temporary folder for the shipped logs of the seeds kept from ``dest`` while they are shipped again (None if
+    none is kept); removed when the agent is shipped, kept (and named) if shipping stops."""
+    if not needed:
+        yield None
+        return
+    staging = Path(tempfile.mkdtemp(prefix=f"deck_sim-shipped-logs-{scene}_{algo}-"))
+    try:
+        yield staging
+    except BaseException:
+        print(f"{scene} {algo}: stopped; a copy of the shipped logs of the seeds kept from {dest.name} is in "
+              f"{staging} (they are also in git)", flush=True)
+        raise
+    shutil.rmtree(staging, ignore_errors=True)
+
+
+def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Path], dest: Path, steps: int,
+                   fields: dict[str, Any], kept: dict[int, LearnedPolicy | None], staging: Path | None,
+                   episodes_per_run: int) -> list[Path]:
+    """Train each seed's run that is not ``kept``, ship the actor (``ship``) and every seed's logs (``ship_logs``).
+
+    ``kept``: the seeds taken from the shipped file (MDDPG/DDPG: their actors; DQN/A2C: None, their logs alone).
+    Returns the folders whose logs were shipped (a kept seed's staged copy in ``staging``), the shipped run first
+    for DQN and A2C."""
+    staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), episodes_per_run)
+    if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
+        order = sorted(kept)
+        best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]
+        if not is_shipped_run(dest, staged[best], best, episodes_per_run):
+            raise SystemExit(f"{scene} {algo}: {dest.name} is not the actor of seed {best}, the best of "
+                             f"the shipped runs {order}; run with their run folders, or --redo with "
+                             "--seeds of the runs that are here")
+    for seed, run in zip(seeds, runs, strict=True):
+        if seed in kept:
+            print(f"{scene} {algo}: seed {seed} as shipped with {dest.name} (no run folder {run})", flush=True)
+            continue
+        train(run, scene, algo, steps, seed, fields)
+        held_out_record(run, episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
+    if algo in DDPG_ALGOS:
+        ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest)
+        runs = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
+    else:  # one run, the others' logs beside it
+        candidates = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
+        chosen = candidates.index(best_run(candidates))
+        if seeds[chosen] not in kept:
+            ship([runs[chosen]], dest)
+        # (else the shipped file, the best kept run's as checked before training, stays)
+        order = [chosen, *(i for i in range(len(candidates)) if i != chosen)]
+        runs, seeds = [candidates[i] for i in order], tuple(seeds[i] for i in order)
+    ship_logs(runs, seeds, scene, algo, episodes_per_run)
+    return runs
+
+
+def measure_and_record(scene: str, algo: str, dest: Path, runs: list[Path], episodes: int,
+                       shipped: dict[str, dict[str, dict]]) -> None:
+    """Measure the shipped ``dest`` on ``episodes`` held-out episodes and write its record to ``results.json``.
+
+    ``runs``: the folders of its runs' logs, read for the training time only when the logs shipped with the policy
+    do not cover every seed; ``shipped``: ``results.json`` as it was, for the time last recorded."""
+    t0 = time.perf_counter()
+    summary = held_out(dest, scene, episodes)
+    meta = load_actor(dest).meta
+    seeds = file_seeds(meta)  # the file's own record (``--evaluate-only`` measures whatever is shipped)
+    # every seed trained for it: an ensemble's members, or the runs a stable-baselines3 agent was chosen from
+    shipped_runs = shipped_logs(algo, scene)
+    logs = [folder for folder, _ in shipped_runs]
+    trained = sorted({s for _, s in shipped_runs if s is not None} | set(seeds))
+    # the training time from the logs shipped with the policy (a run folder may hold a newer, unshipped run),
+    # else from the runs' logs, else as last recorded (``--evaluate-only`` without the run folders keeps it)
+    if len(logs) != len(trained):
+        logs = [r for r in runs if (r / "eval.csv").exists()]
+    if len(logs) == len(trained):  # every run's log, or the sum would leave a run out
+        wall = sum(_train_wall(d) for d in logs)
+    else:
+        wall = float(shipped.get(scene, {}).get(algo, {}).get("train_wall_s", "nan"))
+        print(f"{scene} {algo}: {len(logs)} training logs for {len(trained)} runs; training time kept as "
+              f"recorded ({wall:.0f} s)", flush=True)
+    record = {
+        "algo": algo,
+        "episodes": episodes,
+        "held_out_seed": HELD_OUT_SEED,
+        "success": summary["goal_rate"],
+        "collision": summary["collision_rate"],
+        "timeout": summary["timeout_rate"],
+        "off_surface": summary["off_surface_rate"],
+        "mean_reward": summary["mean_reward"],
+        "path_ratio": summary["path_ratio"],
+        "turning_angle_deg": summary["turning_angle_deg"],
+        "predictor": str(meta.get("predictor", "none")),
+        "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
+        "train_steps": int(meta["config"]["total_steps"]),
+        "selected_at_step": int(meta["trained_steps"]),
+        "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
+        "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
+        "train_wall_s": wall,
+        "seeds": list(seeds),
+        "trained_seeds": trained,  # (a stable-baselines3 agent ships the best of these runs)
+        "file_kib": dest.stat().st_size / 1024,
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+    }
+    with locked_report() as report:  # read just before writing: another run may have finished meanwhile
+        report.setdefault(scene, {})[algo] = record
+    print(
+        f"{scene} {algo}: held-out success {100 * summary['goal_rate']:.1f} % over {episodes} episodes "
+        f"(evaluated in {time.perf_counter() - t0:.0f} s); wrote {dest}",
+        flush=True,
+    )
 
 
 def _train_wall(run: Path) -> float:
