@@ -71,7 +71,7 @@ import platform  # noqa: E402
 import shutil  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Iterator  # noqa: E402
+from collections.abc import Iterator, Mapping  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -457,7 +457,7 @@ def main() -> None:
         if args.evaluate_only:
             if not dest.exists():
                 raise SystemExit(f"--evaluate-only: no shipped policy {dest}")
-            kept: dict[int, LearnedPolicy | None] = {}
+            kept: Mapping[int, LearnedPolicy | None] = {}
         elif algo in DDPG_ALGOS:
             kept = kept_seeds(dest, scene, algo, steps, seeds, runs, fields)
         else:  # (their actors are not shipped: their logs alone, for the choice)
@@ -472,7 +472,8 @@ def main() -> None:
 @contextlib.contextmanager
 def staging_folder(scene: str, algo: str, dest: Path, needed: bool) -> Iterator[Path | None]:
     """A temporary folder for the shipped logs of the seeds kept from ``dest`` while they are shipped again (None if
-    none is kept); removed when the agent is shipped, kept (and named) if shipping stops."""
+    none is kept); removed once the agent is shipped and measured, kept (and named) if anything in the block raises,
+    the measurement included."""
     if not needed:
         yield None
         return
@@ -487,13 +488,15 @@ def staging_folder(scene: str, algo: str, dest: Path, needed: bool) -> Iterator[
 
 
 def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Path], dest: Path, steps: int,
-                   fields: dict[str, Any], kept: dict[int, LearnedPolicy | None], staging: Path | None,
+                   fields: dict[str, Any], kept: Mapping[int, LearnedPolicy | None], staging: Path | None,
                    episodes_per_run: int) -> list[Path]:
     """Train each seed's run that is not ``kept``, ship the actor (``ship``) and every seed's logs (``ship_logs``).
 
     ``kept``: the seeds taken from the shipped file (MDDPG/DDPG: their actors; DQN/A2C: None, their logs alone).
-    Returns the folders whose logs were shipped (a kept seed's staged copy in ``staging``), the shipped run first
-    for DQN and A2C."""
+    MDDPG and DDPG ship the ensemble of every seed's actor. DQN and A2C ship the best run's actor, or leave the
+    shipped file as it is when the best run is a kept seed's; before anything trains, ``SystemExit`` if that file
+    is not the actor of the best kept run. Returns the folders whose logs were shipped (a kept seed's staged copy
+    in ``staging``), the shipped run first for DQN and A2C."""
     staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), episodes_per_run)
     if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
         order = sorted(kept)
@@ -525,7 +528,8 @@ def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Pat
 
 def measure_and_record(scene: str, algo: str, dest: Path, runs: list[Path], episodes: int,
                        shipped: dict[str, dict[str, dict]]) -> None:
-    """Measure the shipped ``dest`` on ``episodes`` held-out episodes and write its record to ``results.json``.
+    """Measure the shipped ``dest`` on ``episodes`` held-out episodes and write its record to ``results.json``
+    (which rewrites ``deck_sim/trained/README.md`` and the project README's table, ``locked_report``).
 
     ``runs``: the folders of its runs' logs, read for the training time only when the logs shipped with the policy
     do not cover every seed; ``shipped``: ``results.json`` as it was, for the time last recorded."""

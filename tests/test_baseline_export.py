@@ -470,6 +470,18 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     assert [s for _, s in shipped_logs("dqn-reward", "deck1")] == [1, 0, 2]
     # a shipped file that is not the best kept run's actor is refused before anything trains
     shipped_from_seeds_0_and_2()
+    staged_before = set(Path(tempfile.gettempdir()).glob("deck_sim-shipped-logs-deck1_dqn-reward-*"))
     with pytest.raises(SystemExit, match="is not the actor of seed 2, the best of the shipped runs"):
         main("--algos", "dqn-reward", "--seeds", "0,1,2", "--episodes", "2")
     assert calls == []
+    # the kept seeds' staged logs stay, named, when shipping stops
+    staged = set(Path(tempfile.gettempdir()).glob("deck_sim-shipped-logs-deck1_dqn-reward-*")) - staged_before
+    assert len(staged) == 1 and "stopped; a copy of the shipped logs" in capsys.readouterr().out
+    (folder,) = staged
+    assert len(list(folder.rglob("eval.csv"))) == 2  # seeds 0 and 2
+    shutil.rmtree(folder)
+    # --evaluate-only measures the shipped file again, training nothing
+    said = main("--algos", "mddpg-reward", "--evaluate-only", "--episodes", "1")
+    assert calls == [] and "deck1 mddpg-reward: held-out success" in said
+    record = json.loads((trained / "results.json").read_text())["deck1"]["mddpg-reward"]
+    assert record["seeds"] == [0, 2] and record["episodes"] == 1
