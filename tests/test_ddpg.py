@@ -304,3 +304,24 @@ def test_an_agent_without_prediction_is_taught_by_the_planner_that_sees_the_fore
         taught.step(a)
         assert np.array_equal(res.obs, plain_obs)
     envs.close()
+
+
+def test_the_layer_norm_critic_normalises_each_hidden_layer_by_hand():
+    from training.config import arm_config
+
+    cfg = arm_config("reward-mddpg-with-layernorm+utd", "deck1", steps=10_000, seed=0)
+    assert cfg.critic_layer_norm and cfg.updates_per_step == 1.0
+    assert TrainConfig.from_dict(cfg.to_dict()) == cfg
+    agent = DDPGAgent(2, 1, TrainConfig(hidden=(3,), twin_critics=True, critic_layer_norm=True))
+    plain = DDPGAgent(2, 1, TrainConfig(hidden=(3,), twin_critics=True))
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in plain.critic.modules())
+    assert all(isinstance(h[1], torch.nn.LayerNorm) for h in (*agent.critic.heads, *agent.critic_target.heads))
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in agent.actor.modules())  # the actor unchanged
+    head = agent.critic.heads[0]
+    _set_linear(head[0], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 4.0]], [0.0, 0.0, 0.0])
+    _set_linear(head[3], [[1.0, 2.0, 3.0]], [0.5])
+    x = np.array([1.0, -2.0, 0.25])  # observation (1, -2), action 0.25
+    z = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 4.0]]) @ x
+    h = np.maximum((z - z.mean()) / np.sqrt(z.var() + 1e-5), 0.0)
+    q = agent.critic.first(torch.tensor([[1.0, -2.0]]), torch.tensor([[0.25]]))
+    np.testing.assert_allclose(q.detach().numpy(), [h @ [1.0, 2.0, 3.0] + 0.5], rtol=1e-5)

@@ -226,6 +226,10 @@ class TrainConfig:
     the rest: 1 is TD3's minimum, 0.5 their mean (Weighted Delayed DDPG, He and Hou 2020, weighs the minimum
     against the mean in the same spirit). The minimum lies half the critics' disagreement below their mean on every
     bootstrapped step, and the discount compounds that over the horizon."""
+    critic_layer_norm: bool = False
+    """A ``LayerNorm`` after each hidden layer of the critic (the actor unchanged): it bounds the features the Q
+    values are read from, which keeps the critic's extrapolation to unseen actions and its bootstrapped targets in
+    check (Ball et al. 2023, RLPD; Hiraoka et al. 2022, DroQ)."""
     target_noise: float = 0.0
     """TD3 target policy smoothing: std of the clipped Gaussian noise added to mu'(s') (0: off)."""
     target_noise_clip: float = 0.5
@@ -613,6 +617,8 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "meanq": {"twin_min_weight": 0.5},
     "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
+    "layernorm": {"critic_layer_norm": True},
+    "utd": {"updates_per_step": 1.0},
     "wait": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "stop"},
     "ez": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "random"},
     "curriculum": {
@@ -641,7 +647,9 @@ reads the movers and the statics through one shared, max-pooled encoder per set,
 updates, the planner labels them and the fit is made again, ``dagger_steps``; ``her``: hindsight targets for 80 % of
 the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
 alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
-than their minimum, ``twin_min_weight = 0.5``; ``lookahead``: the reward's repulsion term reads each mover's
+than their minimum, ``twin_min_weight = 0.5``; ``layernorm``: a ``LayerNorm`` after each hidden layer of the
+critic, ``critic_layer_norm``; ``utd``: one update per environment step (the reward preset makes one per 4),
+``updates_per_step = 1``; ``lookahead``: the reward's repulsion term reads each mover's
 closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
 observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10

@@ -96,7 +96,8 @@ class DDPGAgent:
             self.actor_avg = copy.deepcopy(self.actor)
             for p in self.actor_avg.parameters():
                 p.requires_grad_(False)
-        self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1)
+        self.critic = Critic(obs_dim, act_dim, hidden, n_heads=2 if config.twin_critics else 1,
+                             layer_norm=config.critic_layer_norm)
         self.critic_target = copy.deepcopy(self.critic)
         for p in self.critic_target.parameters():
             p.requires_grad_(False)

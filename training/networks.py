@@ -38,12 +38,15 @@ class MLP(nn.Sequential):
         return x
 
 
-def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None) -> MLP:
-    """Linear layers with ReLU between them; ``out_activation`` after the last one if given."""
+def mlp(sizes: Sequence[int], out_activation: nn.Module | None = None, layer_norm: bool = False) -> MLP:
+    """Linear layers with ReLU between them; with ``layer_norm`` a ``LayerNorm`` after each hidden layer's linear map
+    (before its ReLU); ``out_activation`` after the last one if given."""
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
         layers.append(nn.Linear(sizes[i], sizes[i + 1]))
         if i < len(sizes) - 2:
+            if layer_norm:
+                layers.append(nn.LayerNorm(sizes[i + 1]))
             layers.append(nn.ReLU())
     if out_activation is not None:
         layers.append(out_activation)
@@ -202,11 +205,14 @@ def pool(encoded: torch.Tensor) -> torch.Tensor:
 
 
 class Critic(nn.Module):
-    """Q(s, a): one or two (TD3's twin) Q heads over the concatenated observation and action."""
+    """Q(s, a): one or two (TD3's twin) Q heads over the concatenated observation and action; with ``layer_norm``
+    each hidden layer is normalised (``mlp``), as in the critics of DroQ and RLPD."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int], n_heads: int = 1) -> None:
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int], n_heads: int = 1,
+                 layer_norm: bool = False) -> None:
         super().__init__()
-        self.heads = nn.ModuleList(mlp([obs_dim + act_dim, *hidden, 1]) for _ in range(n_heads))
+        self.heads = nn.ModuleList(mlp([obs_dim + act_dim, *hidden, 1], layer_norm=layer_norm)
+                                   for _ in range(n_heads))
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> list[torch.Tensor]:
         """Every head's Q values, each (B,)."""
