@@ -630,9 +630,15 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         recipe = f"`training/recipes/{recipe_name(algo, scene)}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
-        actor = "final, fitted" if meta.get("polished", False) else f"best evaluation ({r['selected_at_step']} steps)"
-        if meta.get("members"):
-            actor = f"mean action of {len(meta['members'])} actors, each {actor}"
+        if meta.get("polished", False):
+            actor = "final, fitted"
+            if meta.get("members"):
+                actor = f"mean action of {len(meta['members'])} actors, each {actor}"
+        elif meta.get("members"):  # each member its own run's best evaluation, at its own step
+            at = ", ".join(str(m.get("trained_steps", "?")) for m in meta["members"])
+            actor = f"mean action of {len(meta['members'])} actors, each its best evaluation ({at} steps)"
+        else:
+            actor = f"best evaluation ({r['selected_at_step']} steps)"
         seeds = ", ".join(map(str, r.get("seeds", [])))
         if len(r.get("trained_seeds", [])) > len(r.get("seeds", [])):
             actor += f", of the seed whose best evaluation was highest of {', '.join(map(str, r['trained_seeds']))}"

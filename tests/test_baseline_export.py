@@ -211,7 +211,15 @@ def test_the_shipped_policies_page_is_the_scripts_own_output(tmp_path):
 
     script = _train_shipped()
     report = script.read_report(TRAINED_DIR / "results.json")
-    assert script.readme_text(report) == (TRAINED_DIR / "README.md").read_text(encoding="utf-8")
+    text = script.readme_text(report)
+    assert text == (TRAINED_DIR / "README.md").read_text(encoding="utf-8")
+    # an ensemble of best evaluations names each member's own step (the runs peak at different steps)
+    for scene, algo, _ in script.shipped_records(report):
+        meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
+        if meta.get("members") and not meta.get("polished", False):
+            at = ", ".join(str(m["trained_steps"]) for m in meta["members"])
+            row = next(line for line in text.splitlines() if line.startswith(f"| {scene} | {script.LABELS[algo]} |"))
+            assert f"each its best evaluation ({at} steps)" in row, (scene, algo)
     legacy = tmp_path / "results.json"
     legacy.write_text(json.dumps({"deck1": {"dqn": {"success": 0.5, "seed": 4}}}))
     assert script.read_report(legacy) == {"deck1": {"dqn": {"success": 0.5, "seeds": [4]}}}
