@@ -565,7 +565,7 @@ def measure_and_record(scene: str, algo: str, dest: Path, runs: list[Path], epis
         "predictor": str(meta.get("predictor", "none")),
         "recipe": f"training/recipes/{recipe_name(algo, scene)}.toml [{AGENTS[algo].trainer}]",
         "train_steps": int(meta["config"]["total_steps"]),
-        "selected_at_step": int(meta["trained_steps"]),
+        "selected_at_step": int(meta["trained_steps"]),  # an ensemble's first member's (each one's: its ``members``)
         "git_commit": str(meta.get("git_commit", "")),  # the first run's (each run's: ``git_commits``)
         "git_commits": [str(m.get("git_commit", "")) for m in meta.get("members") or [meta]],
         "train_wall_s": wall,
@@ -630,15 +630,15 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         recipe = f"`training/recipes/{recipe_name(algo, scene)}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
+        members = meta.get("members") or []
         if meta.get("polished", False):
             actor = "final, fitted"
-            if meta.get("members"):
-                actor = f"mean action of {len(meta['members'])} actors, each {actor}"
-        elif meta.get("members"):  # each member its own run's best evaluation, at its own step
-            at = ", ".join(str(m.get("trained_steps", "?")) for m in meta["members"])
-            actor = f"mean action of {len(meta['members'])} actors, each its best evaluation ({at} steps)"
+        elif members:  # each member its own run's best evaluation, at its own step
+            actor = f"its best evaluation ({', '.join(str(m.get('trained_steps', '?')) for m in members)} steps)"
         else:
             actor = f"best evaluation ({r['selected_at_step']} steps)"
+        if members:
+            actor = f"mean action of {len(members)} actors, each {actor}"
         seeds = ", ".join(map(str, r.get("seeds", [])))
         if len(r.get("trained_seeds", [])) > len(r.get("seeds", [])):
             actor += f", of the seed whose best evaluation was highest of {', '.join(map(str, r['trained_seeds']))}"
