@@ -83,7 +83,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="environment steps per run (default 40000, or "
                         "the recipe's)")
     parser.add_argument("--arms", default=None,
-                        help="comma-separated (default paper-ddpg,tuned-ddpg,tuned-mddpg; with --recipe mddpg,ddpg)")
+                        help="comma-separated (default paper-ddpg,tuned-ddpg,tuned-mddpg; with --recipe every "
+                             "algorithm it trains: mddpg,ddpg, and dqn,a2c where it has an [sb3] table)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 0, or the recipe's)")
     parser.add_argument("--eval-every", type=int, default=None, help="default 5000, or the recipe's")
     parser.add_argument("--eval-episodes", type=int, default=None, help="default 50, or the recipe's")

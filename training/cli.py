@@ -289,7 +289,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the agent to train (default: mddpg; with --resume, the run's)")
     p.add_argument("--recipe", default=None,
                    help="a shipped recipe (deck1, deck2, square: the runs behind deck_sim/trained; deck1-reward, "
-                        "deck2-reward, square-reward: from the reward alone; deck1-multi: one actor shared by "
+                        "deck2-reward, square-reward: from the reward alone; deck1-planner, deck2-planner: "
+                        "taught by the planner on the agent's observation; deck1-multi: one actor shared by "
                         "four aircraft) or a recipe TOML file; it sets the scene, the preset and every field the "
                         "recipe names")
     p.add_argument("--scene", default=None, help="scene name or TOML path (default: deck1, or the recipe's)")
