@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -55,6 +56,15 @@ def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe_and_the_deck
             assert config.regime == "reward" and config.algo == agent.split("-")[0]
             assert not (config.demo_episodes or config.bc_weight or config.expert_relabel or config.polish_epochs)
         assert recipe_name("mddpg", scene) == scene and training_algo("mddpg") == "mddpg"
+
+
+def test_train_help_lists_every_shipped_recipe(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["train", "--help"])
+    assert done.value.code == 0
+    help_text = re.sub(r"-\s+", "-", " ".join(capsys.readouterr().out.split()))  # undo argparse's wrapping
+    listed = re.search(r"a shipped recipe \(([^:]*):", help_text).group(1)
+    assert listed.split(", ") == recipe_names()
 
 
 @pytest.mark.parametrize("scene", SCENES)
