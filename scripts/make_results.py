@@ -7,10 +7,12 @@ full report (JSON, CSV, Markdown, MCAP logs of the first two episodes of every s
 then ``docs/results.md`` with: the command and commit it came from, the machine; first the paper's comparison, every
 run of the scenes' reward-alone recipes (``training/recipes/<scene>-reward.toml``, run folders in ``--runs`` or the
 logs shipped with a reward-regime actor) measured seed by seed on the same held-out episodes (``training.heldout``),
-as means over seeds with 95 % intervals over seeds and paired differences; then how many training seeds and episodes
-stand behind each shipped policy's number (training figures from ``deck_sim/trained/results.json``), the tables, the
-targets checked against the numbers, learning curves from the training runs' ``eval.csv`` logs (the
-``runs/learning`` folders ``scripts/train_shipped.py`` trains in, where present) and one trajectory plot per scene.
+as means over seeds with 95 % intervals over seeds and paired differences; MDDPG against DDPG in the regimes that
+also learn from a planner (``<scene>-planner`` and ``<scene>`` recipes) measured the same way; then how many
+training seeds and episodes stand behind each shipped policy's number (training figures from
+``deck_sim/trained/results.json``), the tables, the targets checked against the numbers, learning curves from the
+training runs' ``eval.csv`` logs (the ``runs/learning`` folders ``scripts/train_shipped.py`` trains in, where
+present) and one trajectory plot per scene.
 Nothing in ``docs/results.md`` is typed by hand.
 """
 
@@ -135,25 +137,32 @@ def shipped_regime(scene: str, agent: str) -> str | None:
 REWARD_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
 """The training algorithms of the reward-alone recipes, in the paper's ranking (best first)."""
 
+REGIMES = {"reward": "-reward", "planner": "-planner", "oracle-teacher": ""}
+"""Each training regime's suffix of the recipe (``training/recipes/<scene><suffix>.toml``) and of its shipped
+agents' names (``mddpg<suffix>``)."""
 
-def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) -> dict[str, list[dict]]:
-    """Every run of ``scene``'s reward-alone recipe (``training/recipes/<scene>-reward.toml``), each seed's shipped
-    actor on ``episodes`` held-out episodes (``training.heldout``; cached in the run folder, else read from the
-    logs ``scripts/train_shipped.py`` ships beside a reward-regime actor). ``{algo: [record per seed]}``, each
-    record with ``seed``, ``steps`` (trained so far), ``finished`` and ``wall_s`` (training) added; empty if the
-    scene has no such recipe or no run."""
+
+def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
+                algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
+    """Every run of ``scene``'s recipe of ``regime`` (a key of ``REGIMES``; ``algos`` of it, default all), each
+    seed's actor on ``episodes`` held-out episodes (``training.heldout``; cached in the run folder
+    ``<runs_dir>/<recipe>-<algo>-seed<k>``, else read from the logs ``scripts/train_shipped.py`` ships beside the
+    regime's actor). ``{algo: [record per seed]}``, each record with ``seed``, ``steps`` (trained so far),
+    ``finished`` and ``wall_s`` (training) added; empty if the scene has no such recipe or no run."""
     from training.config import ConfigError
     from training.heldout import HeldOutError, held_out, shipped_held_out
-    from training.recipes import load_recipe
 
+    suffix = REGIMES[regime]
     try:
-        recipe = load_recipe(f"{scene}-reward")
+        recipe = load_recipe(f"{scene}{suffix}")
     except ConfigError:
         return {}
     out: dict[str, list[dict]] = {}
     for algo in recipe.algos:
-        shipped = ({seed: folder for folder, seed in shipped_logs(f"{algo}-reward", scene) if seed is not None}
-                   if f"{algo}-reward" in LEARNED else {})
+        if algos is not None and algo not in algos:
+            continue
+        shipped = ({seed: folder for folder, seed in shipped_logs(f"{algo}{suffix}", scene) if seed is not None}
+                   if f"{algo}{suffix}" in LEARNED else {})
         for seed in recipe.seeds(algo):
             run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"
             record = None
@@ -177,6 +186,12 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
     return out
 
 
+def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) -> dict[str, list[dict]]:
+    """Every run of ``scene``'s reward-alone recipe (``training/recipes/<scene>-reward.toml``), as
+    ``regime_runs``."""
+    return regime_runs(scene, "reward", runs_dir, episodes, workers)
+
+
 def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> str:
     """Mean over seeds, with its Student-t 95 % interval over seeds when there are several."""
     m, lo, hi = mean_interval(values)
@@ -189,7 +204,7 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
     seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed."""
-    lines = [
+    return [
         "The paper's protocol: reinforcement learning from the reward alone (no demonstrations, no planner labels, no "
         "cloning, no final fit), `training/recipes/<scene>-reward.toml`, one run per training seed, at most "
         f"1,000,000 environment steps. Each run's actor (its best evaluation on the seed-500 stream) on the "
@@ -197,29 +212,78 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         "--recipe <scene>-reward` trains the runs and prints the same figures). Means over seeds with their "
         "Student-t 95 % interval over seeds; path and turning over successful episodes.",
         "",
-        "| scene | agent | seeds (steps each) | training time (all seeds) | success % | each seed | paper % | "
-        "collision % | path / shortest | turning deg | paper turning deg |",
-        "|---|---|---|---:|---:|---|---:|---:|---:|---:|---:|",
+        *seed_table(reward, recipe_steps, paper=True),
+    ]
+
+
+def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_steps: dict[str, dict[str, int]],
+                   episodes: int, scenes: list[str]) -> list[str]:
+    """The prediction ablation in the regimes that learn from a planner (``found``: ``{regime: {scene: runs}}`` of
+    ``regime_runs``): MDDPG and DDPG seed by seed on the held-out episodes, as in the reward section but without the
+    paper's columns (the paper learnt from the reward alone); the command that trains a missing regime."""
+    lines = [
+        "MDDPG against DDPG in the regimes that also learn from a planner: `planner` (`training/recipes/"
+        "<scene>-planner.toml`, taught by the scripted planner on the agent's own observation) and `oracle-teacher` "
+        "(`training/recipes/<scene>.toml`, taught by the full-knowledge planner). Each run's actor on the same "
+        f"{episodes} held-out episodes, means over seeds with their Student-t 95 % interval over seeds (run folders "
+        "of `python benchmarks/learning.py --recipe <recipe>`, or the logs shipped beside the regime's actor).",
+        "",
+    ]
+    for regime, by_scene in found.items():
+        lines.append(f"### {regime}")
+        lines.append("")
+        if by_scene:
+            lines += seed_table(by_scene, recipe_steps[regime], paper=False)
+        missing = [s for s in scenes if s not in by_scene and recipe_exists(f"{s}{REGIMES[regime]}")]
+        for scene in missing:
+            lines.append(f"- {scene}: no run of `{scene}{REGIMES[regime]}` with a held-out record of {episodes} "
+                         f"episodes in this checkout: `python benchmarks/learning.py --recipe {scene}"
+                         f"{REGIMES[regime]} --arms mddpg,ddpg` trains them.")
+        lines.append("")
+    return lines
+
+
+def recipe_exists(name: str) -> bool:
+    """Whether ``training/recipes/<name>.toml`` is a shipped recipe."""
+    from training.config import ConfigError
+
+    try:
+        load_recipe(name)
+    except ConfigError:
+        return False
+    return True
+
+
+def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool) -> list[str]:
+    """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
+    time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning;
+    with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``)."""
+    lines = [
+        "| scene | agent | seeds (steps each) | training time (all seeds) | success % | each seed | "
+        + ("paper % | " if paper else "") + "collision % | path / shortest | turning deg |"
+        + (" paper turning deg |" if paper else ""),
+        "|---|---|---|---:|---:|---|" + ("---:|" if paper else "") + "---:|---:|---:|" + ("---:|" if paper else ""),
     ]
     notes = []
-    for scene, algos in reward.items():
+    for scene, algos in runs.items():
         for algo, recs in algos.items():
             steps = sorted({r["steps"] for r in recs})
             unfinished = [r["seed"] for r in recs if not r["finished"]]
             seeds = (f"{len(recs)}: {', '.join(str(r['seed']) for r in recs)} ({'/'.join(f'{s:,}' for s in steps)}"
                      f"{'' if not unfinished else f'; of {recipe_steps[scene]:,}, still training'})")
-            paper = PAPER["success"].get(scene, {}).get(algo)
-            paper_turn = PAPER["turning_deg"].get(scene, {}).get(algo)
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)
-            lines.append(
-                f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
-                f"{_interval([r['success'] for r in recs])} | {each} | "
-                f"{'-' if paper is None else f'{100 * paper:.0f}'} | "
-                f"{_interval([r['collision'] for r in recs])} | "
-                f"{_interval([r['path_ratio'] for r in recs], 1.0, '.3f')} | "
-                f"{_interval([r['turning_deg'] for r in recs], 1.0, '.0f')} | "
-                f"{'-' if paper_turn is None else f'{paper_turn:.0f}'} |"
-            )
+            row = (f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
+                   f"{_interval([r['success'] for r in recs])} | {each} | ")
+            if paper:
+                p = PAPER["success"].get(scene, {}).get(algo)
+                row += f"{'-' if p is None else f'{100 * p:.0f}'} | "
+            row += (f"{_interval([r['collision'] for r in recs])} | "
+                    f"{_interval([r['path_ratio'] for r in recs], 1.0, '.3f')} | "
+                    f"{_interval([r['turning_deg'] for r in recs], 1.0, '.0f')} |")
+            if paper:
+                p = PAPER["turning_deg"].get(scene, {}).get(algo)
+                row += f" {'-' if p is None else f'{p:.0f}'} |"
+            lines.append(row)
         notes += ablation_lines(scene, algos)
     return [*lines, "", *notes]
 
@@ -365,6 +429,15 @@ def main() -> None:
         if found := reward_runs(scene, Path(args.runs), args.episodes, args.workers):
             reward[scene] = found
     recipe_steps = {scene: load_recipe(f"{scene}-reward").steps("mddpg") for scene in reward}
+    others: dict[str, dict[str, dict[str, list[dict]]]] = {}
+    for regime in ("planner", "oracle-teacher"):
+        others[regime] = {}
+        for scene in scenes:
+            print(f"{scene}: the {regime} runs on held-out episodes", file=sys.stderr)
+            if found := regime_runs(scene, regime, Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg")):
+                others[regime][scene] = found
+    other_steps = {regime: {scene: load_recipe(f"{scene}{REGIMES[regime]}").steps("mddpg") for scene in by_scene}
+                   for regime, by_scene in others.items()}
     write_report(res, args.out)
     figures = Path(args.doc).parent / "results"
     figures.mkdir(parents=True, exist_ok=True)
@@ -448,6 +521,9 @@ def main() -> None:
             "No run of a reward-alone recipe in this checkout: `python benchmarks/learning.py --recipe deck1-reward` "
             "(and `deck2-reward`, `square-reward`) trains them."]),
         "",
+        "## The prediction ablation in the other regimes",
+        "",
+        *regime_section(others, other_steps, args.episodes, scenes),
         "## What stands behind each number",
         "",
         *provenance(scenes, agents, args.episodes, missing),

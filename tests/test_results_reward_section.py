@@ -26,12 +26,12 @@ def make_results():
 
 
 def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps: int = 1_000_000,
-         goal_each: list[int] | None = None) -> None:
-    """A run folder of ``deck1-reward`` whose actor's held-out record is already cached (no evaluation); each
-    episode's success is the first ``success`` share of the 100 episodes unless ``goal_each`` gives it."""
-    run = out / f"deck1-reward-{algo}-seed{seed}"
+         goal_each: list[int] | None = None, recipe: str = "deck1-reward", total: int = 1_000_000) -> None:
+    """A run folder of ``recipe`` whose actor's held-out record is already cached (no evaluation); each episode's
+    success is the first ``success`` share of the 100 episodes unless ``goal_each`` gives it."""
+    run = out / f"{recipe}-{algo}-seed{seed}"
     run.mkdir(parents=True)
-    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": seed, "total_steps": 1_000_000}))
+    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": seed, "total_steps": total}))
     (run / "eval.csv").write_text(f"step,wall_s,episodes,success\n{steps},600.0,100,0.5\n")
     shutil.copyfile(TRAINED_DIR / f"deck1_{algo}.npz", run / "actor_best.npz")
     digest = hashlib.sha256((run / "actor_best.npz").read_bytes()).hexdigest()
@@ -134,3 +134,25 @@ def test_shipped_reward_runs_are_read_without_their_run_folders(tmp_path, make_r
     assert set(runs) >= {"mddpg", "ddpg"}
     for algo in ("mddpg", "ddpg"):
         assert all(r["finished"] and r["steps"] == 1_000_000 and len(r["goal_each"]) == 100 for r in runs[algo])
+
+
+def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp_path, make_results):
+    """MDDPG against DDPG in the ``planner`` regime, read from ``deck1-planner`` run folders like the reward
+    regime's; the paper's columns are left out (it learnt from the reward alone), and a scene with such a recipe
+    but no measured run names the command that trains it."""
+    for seed, (m, d) in enumerate([(0.95, 0.9), (0.96, 0.9), (0.97, 0.91)]):
+        _run(tmp_path, "mddpg", seed, m, 120.0, steps=160_000, recipe="deck1-planner",
+             total=160_000)
+        _run(tmp_path, "ddpg", seed, d, 100.0, steps=160_000, recipe="deck1-planner",
+             total=160_000)
+    runs = make_results.regime_runs("deck1", "planner", tmp_path, 100, workers=1, algos=("mddpg", "ddpg"))
+    assert set(runs) == {"mddpg", "ddpg"} and all(r["finished"] for r in runs["mddpg"])
+    text = "\n".join(make_results.regime_section({"planner": {"deck1": runs}}, {"planner": {"deck1": 160_000}}, 100,
+                                                 ["deck1", "deck2", "square"]))
+    assert "### planner" in text
+    assert "| deck1 | mddpg | 3: 0, 1, 2 (160,000) | 30 min | 96.0 (93.5 to 98.5) | 95, 96, 97 | " in text
+    assert "paper %" not in text and "98 |" not in text.split("| deck1 | mddpg |")[1].splitlines()[0]
+    assert "deck1: mddpg - ddpg, success paired over seeds 0, 1, 2: +5.7 points" in text
+    assert "- deck2: no run of `deck2-planner` with a held-out record of 100 episodes in this checkout: " \
+        "`python benchmarks/learning.py --recipe deck2-planner --arms mddpg,ddpg` trains them." in text
+    assert "square-planner" not in text  # (no such recipe)
