@@ -161,20 +161,53 @@ def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
         os.replace(tmp, dest)
         return
     members = [r if isinstance(r, LearnedPolicy) else LearnedPolicy.load(shipped_actor(r)) for r in runs]
-    runs_of = {(m.meta["config"].get("extra", {}).get("recipe"), int(m.meta["config"]["total_steps"]),
-                m.meta["algo"], m.meta["scene"]) for m in members}
-    if len(runs_of) > 1:
-        raise SystemExit(f"{dest}: the runs {[str(r) for r in runs]} are not one recipe and budget "
-                         f"(recipe, steps, agent, scene: {sorted(runs_of, key=str)}); train them again or remove one")
+    first = training_of(members[0])
+    for run, member in zip(runs[1:], members[1:], strict=True):
+        differ = differing_fields(first, training_of(member))
+        if differ:
+            raise SystemExit(f"{dest}: the runs {runs[0]} and {run} differ in more than their seed "
+                             f"({', '.join(differ)}), so they are not one recipe and budget; train them again or "
+                             "remove one")
     if len(members) == 1:  # one actor of an ensemble shipped before, on its own
-        tmp = dest.with_name(dest.name + ".tmp.npz")
-        try:
-            np.savez_compressed(tmp, meta=np.array(json.dumps(members[0].meta)), **members[0].arrays)
-            os.replace(tmp, dest)
-        finally:
-            tmp.unlink(missing_ok=True)
+        write_actor(members[0], dest)
         return
     EnsemblePolicy(members, source=str(dest)).save(dest)
+
+
+def training_of(actor: LearnedPolicy) -> dict[str, Any]:
+    """What trained ``actor``: its run's config with the fields added since it was made at their defaults, less the
+    seed, with the scene and agent (compared by ``differing_fields``, which leaves out the notes)."""
+    config = {**TrainConfig().to_dict(), **actor.meta["config"]}
+    config.pop("seed", None)
+    return {**config, "meta_algo": actor.meta.get("algo"), "meta_scene": actor.meta.get("scene")}
+
+
+def write_actor(actor: LearnedPolicy, dest: Path) -> None:
+    """Write one actor (an ensemble's member, say) to ``dest`` as an actor file of its own, atomically."""
+    tmp = dest.with_name(dest.name + ".tmp.npz")
+    try:
+        np.savez_compressed(tmp, meta=np.array(json.dumps(actor.meta)), **actor.arrays)
+        os.replace(tmp, dest)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, Path], episodes: int) -> None:
+    """Measure each kept actor (a seed taken from the shipped file) whose staged logs hold no record of
+    ``episodes`` held-out episodes (``training.heldout``; a file shipped before those records were kept), so that
+    its record is shipped with the logs and ``scripts/make_results.py`` compares that seed too. The actor is
+    written into the staged folder for the measurement and removed after it."""
+    for seed, actor in sorted(kept.items()):
+        folder = staged.get(seed)
+        if actor is None or folder is None or (folder / held_out_file(episodes)).exists():
+            continue
+        path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
+        print(f"{folder.name}: measuring the kept actor of seed {seed} on {episodes} held-out episodes", flush=True)
+        write_actor(actor, path)
+        try:
+            held_out_record(folder, episodes)
+        finally:
+            path.unlink(missing_ok=True)
 
 
 def shipped_members(dest: Path) -> dict[int, LearnedPolicy]:
@@ -498,6 +531,7 @@ def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Pat
     is not the actor of the best kept run. Returns the folders whose logs were shipped (a kept seed's staged copy
     in ``staging``), the shipped run first for DQN and A2C."""
     staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), episodes_per_run)
+    measure_kept(kept, staged, episodes_per_run)
     if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
         order = sorted(kept)
         best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]

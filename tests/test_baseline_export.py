@@ -493,3 +493,34 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     assert calls == [] and "deck1 mddpg-reward: held-out success" in said
     record = json.loads((trained / "results.json").read_text())["deck1"]["mddpg-reward"]
     assert record["seeds"] == [0, 2] and record["episodes"] == 1
+
+
+def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_them_measured(tmp_path, capsys):
+    """The oracle-teacher MDDPG was trained when its recipe had another name (a note in its config the trainer never
+    reads): ``scripts/train_shipped.py`` keeps its seeds (trains only the seeds it lacks), measures a kept seed
+    whose shipped logs hold no held-out record so that its record ships with them, and joins the kept actors with
+    a run of the current recipe into one ensemble; a run of another budget is refused by the field that differs."""
+    from deck_sim.policies import shipped_policy_path
+
+    script = _train_shipped()
+    shipped = shipped_policy_path("mddpg", "deck1")
+    members = script.shipped_members(shipped)
+    assert members[0].meta["config"]["extra"]["recipe"] != "deck1"  # (the name it was trained under)
+    steps = script.default_steps("deck1", "mddpg")
+    runs = [script.run_folder(tmp_path / "runs", "deck1", "mddpg", s) for s in (0, 1, 2)]
+    assert sorted(script.kept_seeds(shipped, "deck1", "mddpg", steps, (0, 1, 2), runs, {})) == [0, 1]
+
+    staged = script.stage_shipped_logs("deck1", "mddpg", {0, 1}, tmp_path / "staging", episodes=2)
+    assert "hold no heldout_2.json" in capsys.readouterr().out
+    script.measure_kept({0: members[0]}, staged, 2)
+    record = json.loads((staged[0] / "heldout_2.json").read_text())
+    assert record["episodes"] == 2 and len(record["goal_each"]) == 2 and record["actor"] == "actor.npz"
+    assert not (staged[0] / "actor.npz").exists() and not (staged[1] / "heldout_2.json").exists()
+
+    new = {**members[1].meta, "config": {**members[1].meta["config"], "seed": 2, "extra": {"recipe": "deck1"}}}
+    dest = tmp_path / "deck1_mddpg.npz"
+    script.ship([members[0], members[1], LearnedPolicy(members[1].arrays, new)], dest)
+    assert script.file_seeds(load_actor(dest).meta) == (0, 1, 2)
+    longer = {**new, "config": {**new["config"], "total_steps": 2 * steps}}
+    with pytest.raises(SystemExit, match="differ in more than their seed \\(total_steps\\)"):
+        script.ship([members[0], LearnedPolicy(members[1].arrays, longer)], dest)

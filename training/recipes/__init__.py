@@ -205,7 +205,13 @@ def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) 
     return differing_fields(want, have)
 
 
+NOTES = frozenset({"extra"})
+"""The config keys that hold notes stored with a run (the recipe's or preset's name), which the trainer never
+reads: two runs that differ in them alone are the same training."""
+
+
 def differing_fields(want: dict[str, Any], have: dict[str, Any]) -> list[str]:
-    """The keys of two configs' ``to_dict`` forms whose values differ (a missing key counts), sorted."""
-    return sorted(k for k in want.keys() | have.keys()
-                  if json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
+    """The keys of two configs' ``to_dict`` forms whose values differ (a missing key counts), sorted; the notes
+    (``NOTES``: a recipe renamed since a run was made) do not count."""
+    return sorted(k for k in want.keys() | have.keys() if k not in NOTES
+                  and json.dumps(want.get(k), sort_keys=True) != json.dumps(have.get(k), sort_keys=True))
