@@ -235,10 +235,13 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         if by_scene:
             lines += seed_table(by_scene, recipe_steps[regime], paper=False)
         missing = [s for s in scenes if s not in by_scene and recipe_exists(f"{s}{REGIMES[regime]}")]
+        suffix = REGIMES[regime]
         for scene in missing:
-            lines.append(f"- {scene}: no run of `{scene}{REGIMES[regime]}` with a held-out record of {episodes} "
-                         f"episodes in this checkout: `python benchmarks/learning.py --recipe {scene}"
-                         f"{REGIMES[regime]} --arms mddpg,ddpg` trains them.")
+            how = (f"`python scripts/train_shipped.py --scenes {scene} --algos mddpg{suffix},ddpg{suffix} --redo` "
+                   "measures the runs of the shipped actors" if (TRAINED_DIR / f"{scene}_mddpg{suffix}.npz").exists()
+                   else f"`python benchmarks/learning.py --recipe {scene}{suffix} --arms mddpg,ddpg` trains them")
+            lines.append(f"- {scene}: no run of `{scene}{suffix}` with a held-out record of {episodes} episodes in "
+                         f"this checkout: {how}.")
         lines.append("")
     return lines
 

@@ -192,17 +192,20 @@ def write_actor(actor: LearnedPolicy, dest: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, Path], episodes: int) -> None:
+def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, Path], episodes: int,
+                 label: str = "") -> None:
     """Measure each kept actor (a seed taken from the shipped file) whose staged logs hold no record of
     ``episodes`` held-out episodes (``training.heldout``; a file shipped before those records were kept), so that
     its record is shipped with the logs and ``scripts/make_results.py`` compares that seed too. The actor is
-    written into the staged folder for the measurement and removed after it."""
+    written into the staged folder for the measurement and removed after it; ``label`` (the scene and agent) starts
+    the progress line."""
     for seed, actor in sorted(kept.items()):
         folder = staged.get(seed)
         if actor is None or folder is None or (folder / held_out_file(episodes)).exists():
             continue
         path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
-        print(f"{folder.name}: measuring the kept actor of seed {seed} on {episodes} held-out episodes", flush=True)
+        print(f"{label or folder.name}: measuring the actor of seed {seed} taken from the shipped file on {episodes} "
+              "held-out episodes", flush=True)
         write_actor(actor, path)
         try:
             held_out_record(folder, episodes)
@@ -531,7 +534,7 @@ def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Pat
     is not the actor of the best kept run. Returns the folders whose logs were shipped (a kept seed's staged copy
     in ``staging``), the shipped run first for DQN and A2C."""
     staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), episodes_per_run)
-    measure_kept(kept, staged, episodes_per_run)
+    measure_kept(kept, staged, episodes_per_run, f"{scene} {algo}")
     if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
         order = sorted(kept)
         best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]

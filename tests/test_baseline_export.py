@@ -512,7 +512,9 @@ def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_t
 
     staged = script.stage_shipped_logs("deck1", "mddpg", {0, 1}, tmp_path / "staging", episodes=2)
     assert "hold no heldout_2.json" in capsys.readouterr().out
-    script.measure_kept({0: members[0]}, staged, 2)
+    script.measure_kept({0: members[0]}, staged, 2, "deck1 mddpg")
+    assert "deck1 mddpg: measuring the actor of seed 0 taken from the shipped file on 2 held-out episodes" in \
+        capsys.readouterr().out
     record = json.loads((staged[0] / "heldout_2.json").read_text())
     assert record["episodes"] == 2 and len(record["goal_each"]) == 2 and record["actor"] == "actor.npz"
     assert not (staged[0] / "actor.npz").exists() and not (staged[1] / "heldout_2.json").exists()

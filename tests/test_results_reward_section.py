@@ -156,3 +156,8 @@ def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp
     assert "- deck2: no run of `deck2-planner` with a held-out record of 100 episodes in this checkout: " \
         "`python benchmarks/learning.py --recipe deck2-planner --arms mddpg,ddpg` trains them." in text
     assert "square-planner" not in text  # (no such recipe)
+    # a regime whose agent is shipped: its runs are measured from the shipped file
+    text = "\n".join(make_results.regime_section({"oracle-teacher": {}}, {"oracle-teacher": {}}, 100, ["deck1"]))
+    assert "- deck1: no run of `deck1` with a held-out record of 100 episodes in this checkout: `python " \
+        "scripts/train_shipped.py --scenes deck1 --algos mddpg,ddpg --redo` measures the runs of the shipped actors." \
+        in text
