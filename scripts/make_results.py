@@ -230,18 +230,27 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         "",
     ]
     for regime, by_scene in found.items():
+        suffix = REGIMES[regime]
+        with_recipe = [s for s in scenes if recipe_exists(f"{s}{suffix}")]
+        if not with_recipe:  # (the square has no planner recipe)
+            continue
         lines.append(f"### {regime}")
         lines.append("")
         if by_scene:
             lines += seed_table(by_scene, recipe_steps[regime], paper=False)
-        missing = [s for s in scenes if s not in by_scene and recipe_exists(f"{s}{REGIMES[regime]}")]
-        suffix = REGIMES[regime]
-        for scene in missing:
-            how = (f"`python scripts/train_shipped.py --scenes {scene} --algos mddpg{suffix},ddpg{suffix} --redo` "
-                   "measures the runs of the shipped actors" if (TRAINED_DIR / f"{scene}_mddpg{suffix}.npz").exists()
-                   else f"`python benchmarks/learning.py --recipe {scene}{suffix} --arms mddpg,ddpg` trains them")
-            lines.append(f"- {scene}: no run of `{scene}{suffix}` with a held-out record of {episodes} episodes in "
-                         f"this checkout: {how}.")
+        for scene in with_recipe:
+            lacking = [a for a in ("mddpg", "ddpg") if a not in by_scene.get(scene, {})]
+            if not lacking:
+                continue
+            agents = ",".join(f"{a}{suffix}" for a in lacking)
+            if all((TRAINED_DIR / f"{scene}_{a}{suffix}.npz").exists() for a in lacking):
+                how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo "
+                       f"--episodes-per-run {episodes}` measures each seed of the shipped file (and the shipped agent "
+                       "again)")
+            else:
+                how = f"`python benchmarks/learning.py --recipe {scene}{suffix} --arms {','.join(lacking)}` trains them"
+            lines.append(f"- {scene}: no run of `{scene}{suffix}` ({', '.join(lacking)}) with a held-out record of "
+                         f"{episodes} episodes in this checkout: {how}.")
         lines.append("")
     return lines
 
@@ -260,7 +269,8 @@ def recipe_exists(name: str) -> bool:
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool) -> list[str]:
     """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
     time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning;
-    with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``)."""
+    with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``,
+    which name the paper's direction only with ``paper``)."""
     lines = [
         "| scene | agent | seeds (steps each) | training time (all seeds) | success % | each seed | "
         + ("paper % | " if paper else "") + "collision % | path / shortest | turning deg |"
@@ -287,11 +297,11 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
                 p = PAPER["turning_deg"].get(scene, {}).get(algo)
                 row += f" {'-' if p is None else f'{p:.0f}'} |"
             lines.append(row)
-        notes += ablation_lines(scene, algos)
+        notes += ablation_lines(scene, algos, paper)
     return [*lines, "", *notes]
 
 
-def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
+def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True) -> list[str]:
     """MDDPG against DDPG (the prediction ablation) and each neighbour of the paper's ranking: the difference of
     held-out success paired by seed, with its 95 % interval over seeds and, where the records keep each episode's
     success, the bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
@@ -325,8 +335,9 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
                 f" (95 % interval {spread})"
         else:  # (one seed's episodes say nothing of the spread between training seeds)
             verdict = "one seed, no verdict" + (f" (95 % interval {spread})" if intervals else "")
+        ranks = f"; the paper ranks {a} above {b}" if paper else ""
         out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}{left_out}: "
-                   f"{100 * m:+.1f} points, {verdict}; the paper ranks {a} above {b}.")
+                   f"{100 * m:+.1f} points, {verdict}{ranks}.")
     done = {a: [r for r in algos.get(a, []) if r["finished"]] for a in ("mddpg", "ddpg")}
     if done["mddpg"] and done["ddpg"]:
         for key, paper_key, more, less, what, unit, paper_unit in (
@@ -336,11 +347,11 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]]) -> list[str]:
         ):
             m, d = (float(np.mean([r[key] for r in done[a]])) for a in ("mddpg", "ddpg"))
             pm, pd = (PAPER[paper_key].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
-            paper = "" if pm is None else \
+            theirs = "" if pm is None or not paper else \
                 f"; the paper's MDDPG {more if pm > pd else less} ({pm:.2f} against {pd:.2f} {paper_unit})"
             spec = ".0f" if key == "turning_deg" else ".3f"
             out.append(f"- {scene}: MDDPG{what.format(more if m > d else less)} ({m:{spec}} against {d:{spec}} {unit}, "
-                       f"means over the finished seeds){paper}.")
+                       f"means over the finished seeds){theirs}.")
     return out
 
 

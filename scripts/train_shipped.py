@@ -39,7 +39,10 @@ again without training).
 A seed of MDDPG or DDPG whose run folder is not here (no ``actor.npz``, no checkpoint) but whose actor is in the
 file already shipped, trained with the recipe's configuration for that seed, is taken from that file with its
 shipped logs (``shipped_members``), not trained again: a shipped agent gains seeds on a checkout that never held its
-earlier runs (``--seeds 0,1,2`` after ``--seeds 0``). For DQN and A2C such a seed's shipped logs (trained with the
+earlier runs (``--seeds 0,1,2`` after ``--seeds 0``). The notes a run stores (the name its recipe had then) are not
+part of its configuration. Such a seed whose shipped logs hold no valid record of ``--episodes-per-run`` held-out
+episodes is measured again from its actor in the file (``measure_kept``; ``--redo`` does it for a file that already
+holds every seed). For DQN and A2C such a seed's shipped logs (trained with the
 recipe's configuration) take part in the choice of the run again (``kept_logs``): the shipped file stays if it is
 still the best, or a new run replaces it (a tie goes to the lower seed, as ever).
 
@@ -92,9 +95,10 @@ from deck_sim.policies import (  # noqa: E402
 )
 from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
+from training.checkpoints import comparable  # noqa: E402
 from training.config import ConfigError, TrainConfig  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
-from training.heldout import held_out_file  # noqa: E402
+from training.heldout import held_out_file, shipped_held_out  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
 from training.recipes import config_differences, differing_fields, load_recipe, recipe_names  # noqa: E402
 
@@ -152,9 +156,9 @@ def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
 
 def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
     """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``), or with several
-    runs an ``EnsemblePolicy`` of their shipped actors, which must be runs of one recipe and budget (a folder
-    finished by another command with other ``--steps`` is refused, not averaged in). An actor of the file shipped
-    before (``shipped_members``) stands for a run whose folder is not here."""
+    runs an ``EnsemblePolicy`` of their shipped actors, which must differ in their seed alone (``training_of``: a
+    folder finished by another command with other ``--steps`` or fields is refused, not averaged in). An actor of
+    the file shipped before (``shipped_members``) stands for a run whose folder is not here."""
     if len(runs) == 1 and isinstance(runs[0], Path):
         tmp = dest.with_name(dest.name + ".tmp")
         shutil.copyfile(shipped_actor(runs[0]), tmp)
@@ -176,8 +180,9 @@ def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
 
 def training_of(actor: LearnedPolicy) -> dict[str, Any]:
     """What trained ``actor``: its run's config with the fields added since it was made at their defaults, less the
-    seed, with the scene and agent (compared by ``differing_fields``, which leaves out the notes)."""
-    config = {**TrainConfig().to_dict(), **actor.meta["config"]}
+    seed, with the scene and agent (compared by ``differing_fields``, which leaves out the notes); a config that no
+    longer parses stands as saved."""
+    config = dict(comparable(actor.meta["config"]))  # (as a resumed run reads it)
     config.pop("seed", None)
     return {**config, "meta_algo": actor.meta.get("algo"), "meta_scene": actor.meta.get("scene")}
 
@@ -201,14 +206,14 @@ def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, 
     the progress line."""
     for seed, actor in sorted(kept.items()):
         folder = staged.get(seed)
-        if actor is None or folder is None or (folder / held_out_file(episodes)).exists():
-            continue
+        if actor is None or folder is None or shipped_held_out(folder, episodes) is not None:
+            continue  # (a record of other episodes, or without each episode's outcome, is measured again)
         path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
         print(f"{label or folder.name}: measuring the actor of seed {seed} taken from the shipped file on {episodes} "
               "held-out episodes", flush=True)
         write_actor(actor, path)
         try:
-            held_out_record(folder, episodes)
+            held_out_record(folder, episodes, per_episode=True)
         finally:
             path.unlink(missing_ok=True)
 
@@ -284,7 +289,8 @@ def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path, episo
     """Copy the shipped logs of ``seeds`` (``deck_sim.policies.shipped_logs``) to ``into/seed<k>/``, so that
     ``ship_logs`` can write them back after it clears the logs folder; the folder of each seed that has them. A seed
     without its measurement on ``episodes`` held-out episodes (shipped with another ``--episodes-per-run``) is
-    named: ``scripts/make_results.py`` leaves it out of the reward-alone comparison until its run is measured."""
+    named: ``scripts/make_results.py`` leaves it out of its regime's comparison until its run is measured
+    (``measure_kept`` measures MDDPG's and DDPG's)."""
     staged = {}
     for folder, seed in shipped_logs(algo, scene):
         if seed in seeds:

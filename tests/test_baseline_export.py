@@ -501,6 +501,7 @@ def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_t
     whose shipped logs hold no held-out record so that its record ships with them, and joins the kept actors with
     a run of the current recipe into one ensemble; a run of another budget is refused by the field that differs."""
     from deck_sim.policies import shipped_policy_path
+    from training.config import TrainConfig
 
     script = _train_shipped()
     shipped = shipped_policy_path("mddpg", "deck1")
@@ -518,8 +519,17 @@ def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_t
     record = json.loads((staged[0] / "heldout_2.json").read_text())
     assert record["episodes"] == 2 and len(record["goal_each"]) == 2 and record["actor"] == "actor.npz"
     assert not (staged[0] / "actor.npz").exists() and not (staged[1] / "heldout_2.json").exists()
+    script.measure_kept({0: members[0]}, staged, 2, "deck1 mddpg")  # a valid record is kept, not measured again
+    assert "measuring" not in capsys.readouterr().out
+    (staged[0] / "heldout_2.json").write_text(json.dumps({**record, "goal_each": None}))  # an older record's form
+    script.measure_kept({0: members[0]}, staged, 2, "deck1 mddpg")
+    assert "measuring the actor of seed 0" in capsys.readouterr().out
+    assert json.loads((staged[0] / "heldout_2.json").read_text())["goal_each"] == record["goal_each"]
 
-    new = {**members[1].meta, "config": {**members[1].meta["config"], "seed": 2, "extra": {"recipe": "deck1"}}}
+    # a run of the current recipe: its whole config as the trainer writes it today, every newer field included
+    config = TrainConfig.from_dict(members[1].meta["config"]).to_dict()
+    new = {**members[1].meta, "config": {**config, "seed": 2, "extra": {"recipe": "deck1"}}}
+    assert set(new["config"]) > set(members[0].meta["config"])
     dest = tmp_path / "deck1_mddpg.npz"
     script.ship([members[0], members[1], LearnedPolicy(members[1].arrays, new)], dest)
     assert script.file_seeds(load_actor(dest).meta) == (0, 1, 2)

@@ -149,15 +149,24 @@ def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp
     assert set(runs) == {"mddpg", "ddpg"} and all(r["finished"] for r in runs["mddpg"])
     text = "\n".join(make_results.regime_section({"planner": {"deck1": runs}}, {"planner": {"deck1": 160_000}}, 100,
                                                  ["deck1", "deck2", "square"]))
-    assert "### planner" in text
+    assert "### planner" in text and "the paper" not in text
+    header, separator = text.split("\n")[4:6]
+    assert header.count("|") == separator.count("|") == 10
     assert "| deck1 | mddpg | 3: 0, 1, 2 (160,000) | 30 min | 96.0 (93.5 to 98.5) | 95, 96, 97 | " in text
     assert "paper %" not in text and "98 |" not in text.split("| deck1 | mddpg |")[1].splitlines()[0]
     assert "deck1: mddpg - ddpg, success paired over seeds 0, 1, 2: +5.7 points" in text
-    assert "- deck2: no run of `deck2-planner` with a held-out record of 100 episodes in this checkout: " \
-        "`python benchmarks/learning.py --recipe deck2-planner --arms mddpg,ddpg` trains them." in text
+    assert "- deck2: no run of `deck2-planner` (mddpg, ddpg) with a held-out record of 100 episodes in this " \
+        "checkout: `python benchmarks/learning.py --recipe deck2-planner --arms mddpg,ddpg` trains them." in text
     assert "square-planner" not in text  # (no such recipe)
-    # a regime whose agent is shipped: its runs are measured from the shipped file
-    text = "\n".join(make_results.regime_section({"oracle-teacher": {}}, {"oracle-teacher": {}}, 100, ["deck1"]))
-    assert "- deck1: no run of `deck1` with a held-out record of 100 episodes in this checkout: `python " \
-        "scripts/train_shipped.py --scenes deck1 --algos mddpg,ddpg --redo` measures the runs of the shipped actors." \
-        in text
+    # one arm alone is named as missing
+    only = {"deck1": {"mddpg": runs["mddpg"]}}
+    text = "\n".join(make_results.regime_section({"planner": only}, {"planner": {"deck1": 160_000}}, 100, ["deck1"]))
+    assert "- deck1: no run of `deck1-planner` (ddpg) with a held-out record" in text
+    # a regime whose agents are shipped: the seeds of the shipped files are measured; a regime no scene has is left out
+    text = "\n".join(make_results.regime_section({"oracle-teacher": {}, "planner": {}},
+                                                 {"oracle-teacher": {}, "planner": {}}, 50, ["deck1", "square"]))
+    assert "- deck1: no run of `deck1` (mddpg, ddpg) with a held-out record of 50 episodes in this checkout: `python " \
+        "scripts/train_shipped.py --scenes deck1 --algos mddpg,ddpg --redo --episodes-per-run 50` measures each " \
+        "seed of the shipped file (and the shipped agent again)." in text
+    text = "\n".join(make_results.regime_section({"planner": {}}, {"planner": {}}, 100, ["square"]))
+    assert "###" not in text
