@@ -443,15 +443,15 @@ def main() -> None:
         if found := reward_runs(scene, Path(args.runs), args.episodes, args.workers):
             reward[scene] = found
     recipe_steps = {scene: load_recipe(f"{scene}-reward").steps("mddpg") for scene in reward}
-    others: dict[str, dict[str, dict[str, list[dict]]]] = {}
+    other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
     for regime in ("planner", "oracle-teacher"):
-        others[regime] = {}
+        other_regimes[regime] = {}
         for scene in scenes:
             print(f"{scene}: the {regime} runs on held-out episodes", file=sys.stderr)
             if found := regime_runs(scene, regime, Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg")):
-                others[regime][scene] = found
+                other_regimes[regime][scene] = found
     other_steps = {regime: {scene: load_recipe(f"{scene}{REGIMES[regime]}").steps("mddpg") for scene in by_scene}
-                   for regime, by_scene in others.items()}
+                   for regime, by_scene in other_regimes.items()}
     write_report(res, args.out)
     figures = Path(args.doc).parent / "results"
     figures.mkdir(parents=True, exist_ok=True)
@@ -537,7 +537,7 @@ def main() -> None:
         "",
         "## The prediction ablation in the other regimes",
         "",
-        *regime_section(others, other_steps, args.episodes, scenes),
+        *regime_section(other_regimes, other_steps, args.episodes, scenes),
         "## What stands behind each number",
         "",
         *provenance(scenes, agents, args.episodes, missing),

@@ -170,3 +170,27 @@ def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp
         "seed of the shipped file (and the shipped agent again)." in text
     text = "\n".join(make_results.regime_section({"planner": {}}, {"planner": {}}, 100, ["square"]))
     assert "###" not in text
+
+
+def test_the_whole_script_writes_every_section(tmp_path):
+    """``scripts/make_results.py`` end to end on one episode of one reference planner: the page holds its sections
+    in order, the other regimes' included (a scene without measured runs names the command that measures them)."""
+    import os
+    import subprocess
+    import sys
+
+    doc = tmp_path / "doc" / "results.md"
+    done = subprocess.run(
+        [sys.executable, "scripts/make_results.py", "--scenes", "square", "--agents", "apf", "--episodes", "1",
+         "--workers", "1", "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs"), "--doc", str(doc)],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+        env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    text = doc.read_text()
+    headings = [line for line in text.splitlines() if line.startswith("## ")]
+    assert headings[:5] == ["## The paper's comparison: learnt from the reward alone",
+                            "## The prediction ablation in the other regimes", "## What stands behind each number",
+                            "## Tables", "## Targets"]
+    assert "### oracle-teacher" in text and "### planner" not in text  # (the square has no planner recipe)
+    assert "- square: no run of `square` (mddpg, ddpg) with a held-out record of 1 episodes" in text
