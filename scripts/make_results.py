@@ -268,7 +268,8 @@ def recipe_exists(name: str) -> bool:
 
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool) -> list[str]:
     """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
-    time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning;
+    time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning,
+    over the seeds that finished their recipe's budget (every seed while none has; the others are named);
     with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``,
     which name the paper's direction only with ``paper``)."""
     lines = [
@@ -279,11 +280,18 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
     ]
     notes = []
     for scene, algos in runs.items():
-        for algo, recs in algos.items():
+        for algo, every in algos.items():
+            # a seed still training is named, and left out of the figures while another seed has finished
+            recs = [r for r in every if r["finished"]] or every
+            training = [r for r in every if not r["finished"]]
             steps = sorted({r["steps"] for r in recs})
-            unfinished = [r["seed"] for r in recs if not r["finished"]]
-            seeds = (f"{len(recs)}: {', '.join(str(r['seed']) for r in recs)} ({'/'.join(f'{s:,}' for s in steps)}"
-                     f"{'' if not unfinished else f'; of {recipe_steps[scene]:,}, still training'})")
+            seeds = f"{len(recs)}: {', '.join(str(r['seed']) for r in recs)} ({'/'.join(f'{s:,}' for s in steps)}"
+            if len(recs) < len(every):
+                seeds += "); " + ", ".join(f"seed {r['seed']} still training ({r['steps']:,} of "
+                                            f"{recipe_steps[scene]:,}), left out"
+                                            for r in training)
+            else:
+                seeds += f"{'' if not training else f'; of {recipe_steps[scene]:,}, still training'})"
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)
             row = (f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
                    f"{_interval([r['success'] for r in recs])} | {each} | ")

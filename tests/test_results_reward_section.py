@@ -77,7 +77,16 @@ def test_a_seed_still_training_is_shown_but_left_out_of_the_comparisons(tmp_path
     assert [r["finished"] for r in runs["ddpg"]] == [True, True, False]
     text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
     row = text.split("| deck1 | ddpg |")[1].splitlines()[0]
+    # the figures are the finished seeds' (a run at 200,000 steps is not the recipe's budget), the other named
+    assert " 2: 0, 1 (1,000,000); seed 2 still training (200,000 of 1,000,000), left out | 20 min | 80.0 (80.0 " \
+        "to 80.0) | 80, 80 |" in row and "900" not in row
+    for r in runs["ddpg"]:  # while no seed has finished, every seed is shown
+        r["finished"] = False
+    row = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100)).split(
+        "| deck1 | ddpg |")[1].splitlines()[0]
     assert "3: 0, 1, 2 (200,000/1,000,000; of 1,000,000, still training)" in row and "| 80, 80, 30 |" in row
+    for r, done in zip(runs["ddpg"], (True, True, False), strict=True):
+        r["finished"] = done
     # seeds 0 and 1 alone: 10 and 12 points (a run at 200,000 steps is not the recipe's budget)
     assert "mddpg - ddpg, success paired over seeds 0, 1 (seed 2 still training: left out): +11.0 points" in text
     assert "MDDPG turns more than DDPG (200 against 150 deg per successful episode, means over the finished seeds)" \
