@@ -287,9 +287,8 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
             steps = sorted({r["steps"] for r in recs})
             seeds = f"{len(recs)}: {', '.join(str(r['seed']) for r in recs)} ({'/'.join(f'{s:,}' for s in steps)}"
             if len(recs) < len(every):
-                seeds += "); " + ", ".join(f"seed {r['seed']} still training ({r['steps']:,} of "
-                                            f"{recipe_steps[scene]:,}), left out"
-                                            for r in training)
+                seeds += "); " + ", ".join(f"seed {r['seed']} still training (last evaluated at {r['steps']:,} of "
+                                            f"{recipe_steps[scene]:,} steps), left out" for r in training)
             else:
                 seeds += f"{'' if not training else f'; of {recipe_steps[scene]:,}, still training'})"
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)

@@ -78,8 +78,8 @@ def test_a_seed_still_training_is_shown_but_left_out_of_the_comparisons(tmp_path
     text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
     row = text.split("| deck1 | ddpg |")[1].splitlines()[0]
     # the figures are the finished seeds' (a run at 200,000 steps is not the recipe's budget), the other named
-    assert " 2: 0, 1 (1,000,000); seed 2 still training (200,000 of 1,000,000), left out | 20 min | 80.0 (80.0 " \
-        "to 80.0) | 80, 80 |" in row and "900" not in row
+    assert " 2: 0, 1 (1,000,000); seed 2 still training (last evaluated at 200,000 of 1,000,000 steps), left " \
+        "out | 20 min | 80.0 (80.0 to 80.0) | 80, 80 |" in row and "900" not in row
     for r in runs["ddpg"]:  # while no seed has finished, every seed is shown
         r["finished"] = False
     row = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100)).split(
