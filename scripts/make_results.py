@@ -54,7 +54,7 @@ from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_d
 from deck_sim.policies.regimes import actor_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
-from training.recipes import load_recipe  # noqa: E402
+from training.recipes import load_recipe, recipe_names  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
@@ -231,7 +231,7 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
     ]
     for regime, by_scene in found.items():
         suffix = REGIMES[regime]
-        with_recipe = [s for s in scenes if recipe_exists(f"{s}{suffix}")]
+        with_recipe = [s for s in scenes if f"{s}{suffix}" in recipe_names()]
         if not with_recipe:  # (the square has no planner recipe)
             continue
         lines.append(f"### {regime}")
@@ -253,17 +253,6 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
                          f"{episodes} episodes in this checkout: {how}.")
         lines.append("")
     return lines
-
-
-def recipe_exists(name: str) -> bool:
-    """Whether ``training/recipes/<name>.toml`` is a shipped recipe."""
-    from training.config import ConfigError
-
-    try:
-        load_recipe(name)
-    except ConfigError:
-        return False
-    return True
 
 
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool) -> list[str]:
