@@ -51,7 +51,7 @@ from deck_sim.evaluation import (  # noqa: E402
 )
 from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
 from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_dir, shipped_logs  # noqa: E402
-from deck_sim.policies.regimes import actor_regime, regime_text  # noqa: E402
+from deck_sim.policies.regimes import actor_regime, config_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
 from training.recipes import load_recipe, recipe_names  # noqa: E402
@@ -137,32 +137,41 @@ def shipped_regime(scene: str, agent: str) -> str | None:
 REWARD_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
 """The training algorithms of the reward-alone recipes, in the paper's ranking (best first)."""
 
-REGIMES = {"reward": "-reward", "planner": "-planner", "oracle-teacher": ""}
-"""Each training regime's suffix of the recipe (``training/recipes/<scene><suffix>.toml``) and of its shipped
-agents' names (``mddpg<suffix>``)."""
+def regime_agents(scene: str, regime: str) -> tuple[str, dict[str, str]] | None:
+    """The recipe of ``scene`` whose MDDPG trains in ``regime`` and the learned agents that recipe trains,
+    ``(recipe, {algo: agent})``, read from the agent registry (``deck_sim.agents``: each learned agent's recipe on
+    the scene, ``recipe_name``) and the recipes themselves (the regime of their MDDPG config, ``config_regime``).
+    None if no registered MDDPG agent of ``scene`` trains in ``regime``."""
+    names = recipe_names()
+    found = [name for agent in LEARNED
+             if training_algo(agent) == "mddpg" and (name := recipe_name(agent, scene)) in names
+             and config_regime(load_recipe(name).config("mddpg", load_recipe(name).seeds("mddpg")[0]).to_dict())
+             == regime]
+    if not found:
+        return None
+    if len(found) > 1:
+        raise ValueError(f"{scene}: recipes {', '.join(found)} all train MDDPG in regime {regime}")
+    return found[0], {training_algo(agent): agent for agent in LEARNED if recipe_name(agent, scene) == found[0]}
 
 
 def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
                 algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
-    """Every run of ``scene``'s recipe of ``regime`` (a key of ``REGIMES``; ``algos`` of it, default all), each
+    """Every run of ``scene``'s recipe of ``regime`` (``regime_agents``; ``algos`` of it, default all), each
     seed's actor on ``episodes`` held-out episodes (``training.heldout``; cached in the run folder
     ``<runs_dir>/<recipe>-<algo>-seed<k>``, else read from the logs ``scripts/train_shipped.py`` ships beside the
     regime's actor). ``{algo: [record per seed]}``, each record with ``seed``, ``steps`` (trained so far),
     ``finished`` and ``wall_s`` (training) added; empty if the scene has no such recipe or no run."""
-    from training.config import ConfigError
     from training.heldout import HeldOutError, held_out, shipped_held_out
 
-    suffix = REGIMES[regime]
-    try:
-        recipe = load_recipe(f"{scene}{suffix}")
-    except ConfigError:
+    if (found := regime_agents(scene, regime)) is None:
         return {}
+    recipe, agents = load_recipe(found[0]), found[1]
     out: dict[str, list[dict]] = {}
     for algo in recipe.algos:
         if algos is not None and algo not in algos:
             continue
-        shipped = ({seed: folder for folder, seed in shipped_logs(f"{algo}{suffix}", scene) if seed is not None}
-                   if f"{algo}{suffix}" in LEARNED else {})
+        shipped = ({seed: folder for folder, seed in shipped_logs(agents[algo], scene) if seed is not None}
+                   if algo in agents else {})
         for seed in recipe.seeds(algo):
             run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"
             record = None
@@ -230,26 +239,25 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         "",
     ]
     for regime, by_scene in found.items():
-        suffix = REGIMES[regime]
-        with_recipe = [s for s in scenes if f"{s}{suffix}" in recipe_names()]
+        with_recipe = {s: found for s in scenes if (found := regime_agents(s, regime)) is not None}
         if not with_recipe:  # (the square has no planner recipe)
             continue
         lines.append(f"### {regime}")
         lines.append("")
         if by_scene:
             lines += seed_table(by_scene, recipe_steps[regime], paper=False)
-        for scene in with_recipe:
+        for scene, (recipe, by_algo) in with_recipe.items():
             lacking = [a for a in ("mddpg", "ddpg") if a not in by_scene.get(scene, {})]
             if not lacking:
                 continue
-            agents = ",".join(f"{a}{suffix}" for a in lacking)
-            if all((TRAINED_DIR / f"{scene}_{a}{suffix}.npz").exists() for a in lacking):
+            agents = ",".join(by_algo[a] for a in lacking)
+            if all((TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
                 how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo "
                        f"--episodes-per-run {episodes}` measures each seed of the shipped file (and the shipped agent "
                        "again)")
             else:
-                how = f"`python benchmarks/learning.py --recipe {scene}{suffix} --arms {','.join(lacking)}` trains them"
-            lines.append(f"- {scene}: no run of `{scene}{suffix}` ({', '.join(lacking)}) with a held-out record of "
+                how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(lacking)}` trains them"
+            lines.append(f"- {scene}: no run of `{recipe}` ({', '.join(lacking)}) with a held-out record of "
                          f"{episodes} episodes in this checkout: {how}.")
         lines.append("")
     return lines
@@ -438,15 +446,17 @@ def main() -> None:
         print(f"{scene}: the reward-alone runs on held-out episodes", file=sys.stderr)
         if found := reward_runs(scene, Path(args.runs), args.episodes, args.workers):
             reward[scene] = found
-    recipe_steps = {scene: load_recipe(f"{scene}-reward").steps("mddpg") for scene in reward}
+    recipe_steps = {scene: load_recipe(regime_agents(scene, "reward")[0]).steps("mddpg") for scene in reward}
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
     for regime in ("planner", "oracle-teacher"):
         other_regimes[regime] = {}
         for scene in scenes:
+            if regime_agents(scene, regime) is None:
+                continue
             print(f"{scene}: the {regime} runs on held-out episodes", file=sys.stderr)
             if found := regime_runs(scene, regime, Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg")):
                 other_regimes[regime][scene] = found
-    other_steps = {regime: {scene: load_recipe(f"{scene}{REGIMES[regime]}").steps("mddpg") for scene in by_scene}
+    other_steps = {regime: {scene: load_recipe(regime_agents(scene, regime)[0]).steps("mddpg") for scene in by_scene}
                    for regime, by_scene in other_regimes.items()}
     write_report(res, args.out)
     figures = Path(args.doc).parent / "results"

@@ -181,6 +181,19 @@ def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp
     assert "###" not in text
 
 
+def test_each_regimes_recipe_and_agents_come_from_the_registry_and_the_recipes(make_results):
+    """A regime's recipe on a scene is the one whose MDDPG config trains in it, and its agents are the registry's
+    learned agents of that recipe: the short DQN and A2C of the oracle-teacher recipe learn from the reward too, yet
+    the reward regime's recipe stays the one whose MDDPG does."""
+    assert make_results.regime_agents("deck1", "reward") == (
+        "deck1-reward", {"mddpg": "mddpg-reward", "ddpg": "ddpg-reward", "dqn": "dqn-reward", "a2c": "a2c-reward"})
+    assert make_results.regime_agents("deck2", "planner") == (
+        "deck2-planner", {"mddpg": "mddpg-planner", "ddpg": "ddpg-planner"})
+    recipe, agents = make_results.regime_agents("square", "oracle-teacher")
+    assert recipe == "square" and agents["mddpg"] == "mddpg" and agents["ddpg"] == "ddpg"
+    assert make_results.regime_agents("square", "planner") is None
+
+
 def test_the_whole_script_writes_every_section(tmp_path):
     """``scripts/make_results.py`` end to end on one episode of one reference planner: the page holds its sections
     in order, the other regimes' included (a scene without measured runs names the command that measures them)."""
