@@ -178,7 +178,12 @@ def main() -> None:
         )
     print_differences(summary, arms)
     if args.held_out:
-        held = held_out_table(runs_of, args.held_out, set(source.values()))
+        try:
+            held = held_out_table(runs_of, args.held_out, set(source.values()))
+        except KeyboardInterrupt:  # (each run's record is cached once measured: the next command goes on from there)
+            print("\nstopped during the held-out measurement: run the command again to go on (the runs measured "
+                  "so far are cached)", flush=True)
+            raise SystemExit(130) from None
         print_differences(held, arms)
         for arm, row in held.items():
             summary[arm]["held_out"] = row

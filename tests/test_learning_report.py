@@ -217,6 +217,31 @@ def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(t
     assert (first / "checkpoint.pt").exists() and not (tmp_path / "deck1-paper-mddpg-seed0").exists()
 
 
+def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_way_on(tmp_path):
+    """A Ctrl-C while the finished runs' actors are measured on the held-out episodes (no training left) ends the
+    command with code 130 and a line saying to run it again, not with a traceback."""
+    import json
+
+    import numpy as np
+
+    from deck_sim.policies import TRAINED_DIR, load_actor
+
+    _run_folder(tmp_path, "deck1-planner-ddpg-seed0", [0.9])
+    run = tmp_path / "deck1-planner-ddpg-seed0"
+    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": 0, "total_steps": 50_000}))
+    member = load_actor(TRAINED_DIR / "deck1_ddpg.npz").members[0]  # (one actor, as a run writes)
+    np.savez_compressed(run / "actor.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
+    args = ["--recipe", "deck1-planner", "--arms", "ddpg", "--seeds", "0", "--no-train", "--out", str(tmp_path)]
+
+    def measuring(pid: int) -> bool:  # (the evaluation's worker processes, forked, have started)
+        return len(_children(pid, "learning.py")) >= 1
+
+    code, out, err = _ctrl_c(args, measuring, "the held-out measurement did not start")
+    assert code == 130 and "Traceback" not in err, err
+    assert "stopped during the held-out measurement: run the command again to go on" in out
+    assert not list(run.glob("heldout_*.json"))
+
+
 def test_the_held_out_difference_adds_the_interval_over_seeds_and_episodes(capsys, monkeypatch):
     import importlib.util
 

@@ -7,7 +7,9 @@ import json
 import logging
 import os
 import platform
+import signal
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -371,19 +373,35 @@ def _warm(units: Sequence[Unit]) -> None:
             _WORKER_CACHE[key] = make_agent(u.agent, env, seed=u.seed)
 
 
+def _worker_ignores_ctrl_c() -> None:
+    """Pool initializer: Ctrl-C is the parent's to handle (it lets the running units finish, see ``_process``)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _process(units: Sequence[Unit], workers: int) -> Iterator[list[dict]]:
+    """Run ``units`` in ``workers`` processes. The workers ignore Ctrl-C (they start with it blocked, so that even
+    one that arrives while they fork waits until they ignore it); in this process it cancels the units not started,
+    waits for the running ones to finish writing their logs, and goes on as ``KeyboardInterrupt``."""
     method = "fork" if platform.system() == "Linux" else "spawn"
     if method == "fork":
         _warm(units)
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method))
+    guard = threading.current_thread() is threading.main_thread()
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if guard else None
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method),
+                               initializer=_worker_ignores_ctrl_c)
     try:
-        pending = {pool.submit(run_unit, u) for u in units}
+        try:
+            pending = {pool.submit(run_unit, u) for u in units}
+        finally:
+            if before is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, before)  # (a Ctrl-C that came meanwhile is raised here)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
                 yield f.result()
     except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)  # a failed unit stops the run: drop what has not started
+        pool.shutdown(wait=True, cancel_futures=True)  # a failed unit or Ctrl-C: drop the units not started
         raise
     pool.shutdown(wait=True)
 
