@@ -140,7 +140,7 @@ def _shipped_agents() -> dict[str, dict[str, dict]]:
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
-    from deck_sim.policies import SHIPPED_ALGOS, policy_overrides, shipped_policy_path
+    from deck_sim.policies import SHIPPED_ALGOS, load_actor, policy_overrides, shipped_policy_path
 
     agents = _shipped_agents()[scene]
     # all four learned agents of the paper, measured and shipped (and any other shipped agent of the registry)
@@ -149,7 +149,9 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
         if (AGENTS[algo].algo or algo) == "mddpg":  # acts with the MPC forecast: test_trainer.py, test_regimes.py
             continue
         path = shipped_policy_path(algo, scene)
-        assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
+        shipped = load_actor(path)
+        actors = len(getattr(shipped, "members", [shipped]))  # (an ensemble holds one actor per seed)
+        assert path.stat().st_size < actors * 1.5 * 1024 * 1024  # small: weights only, no optimiser or replay
         # each actor's own observation (DDPG on deck 1 also observes the movers' sizes)
         env = deck_sim.load(scene, seed=1000, **policy_overrides(algo, scene))
         policy = make_policy(algo, env)
