@@ -216,3 +216,9 @@ def test_the_whole_script_writes_every_section(tmp_path):
                             "## Tables", "## Targets"]
     assert "### oracle-teacher" in text and "### planner" not in text  # (the square has no planner recipe)
     assert "- square: no run of `square` (mddpg, ddpg) with a held-out record of 1 episodes" in text
+    assert "min of evaluation (process backend; the scenes' wall times summed). Do not edit" in text
+    # run again reusing the scene's evaluation: the header says whose time it quotes
+    again = subprocess.run(done.args + ["--reuse"], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                           env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"})
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "summed, those of square from the run that computed them)." in doc.read_text()
