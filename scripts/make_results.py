@@ -25,6 +25,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import argparse  # noqa: E402
 import csv  # noqa: E402
+import functools  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
@@ -137,21 +138,34 @@ def shipped_regime(scene: str, agent: str) -> str | None:
 REWARD_ALGOS = ("mddpg", "ddpg", "dqn", "a2c")
 """The training algorithms of the reward-alone recipes, in the paper's ranking (best first)."""
 
+
+@functools.cache
 def regime_agents(scene: str, regime: str) -> tuple[str, dict[str, str]] | None:
     """The recipe of ``scene`` whose MDDPG trains in ``regime`` and the learned agents that recipe trains,
     ``(recipe, {algo: agent})``, read from the agent registry (``deck_sim.agents``: each learned agent's recipe on
     the scene, ``recipe_name``) and the recipes themselves (the regime of their MDDPG config, ``config_regime``).
     None if no registered MDDPG agent of ``scene`` trains in ``regime``."""
-    names = recipe_names()
-    found = [name for agent in LEARNED
-             if training_algo(agent) == "mddpg" and (name := recipe_name(agent, scene)) in names
-             and config_regime(load_recipe(name).config("mddpg", load_recipe(name).seeds("mddpg")[0]).to_dict())
-             == regime]
+    names = set(recipe_names())
+    found = []
+    for agent in LEARNED:
+        name = recipe_name(agent, scene)
+        if training_algo(agent) != "mddpg" or name not in names:
+            continue
+        recipe = load_recipe(name)
+        if config_regime(recipe.config("mddpg", recipe.seeds("mddpg")[0]).to_dict()) == regime:
+            found.append(name)
     if not found:
         return None
     if len(found) > 1:
         raise ValueError(f"{scene}: recipes {', '.join(found)} all train MDDPG in regime {regime}")
     return found[0], {training_algo(agent): agent for agent in LEARNED if recipe_name(agent, scene) == found[0]}
+
+
+def regime_recipe(scene: str, regime: str) -> str:
+    """The name of ``scene``'s recipe of ``regime`` (``regime_agents``); ValueError if it has none."""
+    if (found := regime_agents(scene, regime)) is None:
+        raise ValueError(f"{scene} has no recipe of regime {regime}")
+    return found[0]
 
 
 def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
@@ -239,7 +253,7 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         "",
     ]
     for regime, by_scene in found.items():
-        with_recipe = {s: found for s in scenes if (found := regime_agents(s, regime)) is not None}
+        with_recipe = {s: of_scene for s in scenes if (of_scene := regime_agents(s, regime)) is not None}
         if not with_recipe:  # (the square has no planner recipe)
             continue
         lines.append(f"### {regime}")
@@ -250,8 +264,8 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
             lacking = [a for a in ("mddpg", "ddpg") if a not in by_scene.get(scene, {})]
             if not lacking:
                 continue
-            agents = ",".join(by_algo[a] for a in lacking)
-            if all((TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
+            agents = ",".join(by_algo.get(a, a) for a in lacking)
+            if all(a in by_algo and (TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
                 how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo "
                        f"--episodes-per-run {episodes}` measures each seed of the shipped file (and the shipped agent "
                        "again)")
@@ -448,7 +462,7 @@ def main() -> None:
         print(f"{scene}: the reward-alone runs on held-out episodes", file=sys.stderr)
         if found := reward_runs(scene, Path(args.runs), args.episodes, args.workers):
             reward[scene] = found
-    recipe_steps = {scene: load_recipe(regime_agents(scene, "reward")[0]).steps("mddpg") for scene in reward}
+    recipe_steps = {scene: load_recipe(regime_recipe(scene, "reward")).steps("mddpg") for scene in reward}
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
     for regime in ("planner", "oracle-teacher"):
         other_regimes[regime] = {}
@@ -458,7 +472,7 @@ def main() -> None:
             print(f"{scene}: the {regime} runs on held-out episodes", file=sys.stderr)
             if found := regime_runs(scene, regime, Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg")):
                 other_regimes[regime][scene] = found
-    other_steps = {regime: {scene: load_recipe(regime_agents(scene, regime)[0]).steps("mddpg") for scene in by_scene}
+    other_steps = {regime: {scene: load_recipe(regime_recipe(scene, regime)).steps("mddpg") for scene in by_scene}
                    for regime, by_scene in other_regimes.items()}
     write_report(res, args.out)
     figures = Path(args.doc).parent / "results"

@@ -146,12 +146,12 @@ def test_every_agent_is_measured_shipped_small_and_acts_by_name(scene):
     # all four learned agents of the paper, measured and shipped (and any other shipped agent of the registry)
     assert {"mddpg", "ddpg", "dqn", "a2c"} <= set(agents) <= set(SHIPPED_ALGOS)
     for algo, record in agents.items():
-        if (AGENTS[algo].algo or algo) == "mddpg":  # acts with the MPC forecast: test_trainer.py, test_regimes.py
-            continue
         path = shipped_policy_path(algo, scene)
         shipped = load_actor(path)
         actors = len(getattr(shipped, "members", [shipped]))  # (an ensemble holds one actor per seed)
         assert path.stat().st_size < actors * 1.5 * 1024 * 1024  # small: weights only, no optimiser or replay
+        if (AGENTS[algo].algo or algo) == "mddpg":  # acts with the MPC forecast: test_trainer.py, test_regimes.py
+            continue
         # each actor's own observation (DDPG on deck 1 also observes the movers' sizes)
         env = deck_sim.load(scene, seed=1000, **policy_overrides(algo, scene))
         policy = make_policy(algo, env)

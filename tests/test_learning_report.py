@@ -217,6 +217,7 @@ def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(t
     assert (first / "checkpoint.pt").exists() and not (tmp_path / "deck1-paper-mddpg-seed0").exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_way_on(tmp_path):
     """A Ctrl-C while the finished runs' actors are measured on the held-out episodes (no training left) ends the
     command with code 130 and a line saying to run it again, not with a traceback."""

@@ -3,15 +3,15 @@ process-pool and Ray backends that run them, and ``evaluate``, which gathers eve
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import platform
 import signal
 import socket
-import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
@@ -373,10 +373,15 @@ def _warm(units: Sequence[Unit]) -> None:
             _WORKER_CACHE[key] = make_agent(u.agent, env, seed=u.seed)
 
 
+CAN_MASK = hasattr(signal, "pthread_sigmask")
+"""Whether this platform blocks signals per thread (POSIX); elsewhere the workers only ignore Ctrl-C once started."""
+
+
 def _worker_ignores_ctrl_c() -> None:
     """Pool initializer: Ctrl-C is the parent's to handle (it lets the running units finish, see ``_process``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    if CAN_MASK:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _process(units: Sequence[Unit], workers: int) -> Iterator[list[dict]]:
@@ -386,12 +391,14 @@ def _process(units: Sequence[Unit], workers: int) -> Iterator[list[dict]]:
     method = "fork" if platform.system() == "Linux" else "spawn"
     if method == "fork":
         _warm(units)
-    guard = threading.current_thread() is threading.main_thread()
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if guard else None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method),
-                               initializer=_worker_ignores_ctrl_c)
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, ()) if CAN_MASK else None  # (reads the mask, changes nothing)
+    pool: ProcessPoolExecutor | None = None
     try:
         try:
+            if before is not None:
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(method),
+                                       initializer=_worker_ignores_ctrl_c)
             pending = {pool.submit(run_unit, u) for u in units}
         finally:
             if before is not None:
@@ -401,7 +408,8 @@ def _process(units: Sequence[Unit], workers: int) -> Iterator[list[dict]]:
             for f in done:
                 yield f.result()
     except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)  # a failed unit or Ctrl-C: drop the units not started
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)  # a failed unit or Ctrl-C: drop the units not started
         raise
     pool.shutdown(wait=True)
 
@@ -527,11 +535,13 @@ def evaluate(cfg: EvalConfig, progress: Callable[[int, int, list[dict]], None] |
     t0 = time.perf_counter()
     rows: list[dict] = []
     done = 0
-    for batch in stream:
-        rows.extend(batch)
-        done += len({(r["scene"], r["agent"], r["episode"]) for r in batch})  # (several rows per episode of a team)
-        if progress is not None and batch:
-            progress(done, total, batch)
+    # (closed on the way out, so that an error or Ctrl-C here also stops the workers' queued units)
+    with contextlib.closing(stream) if isinstance(stream, Generator) else contextlib.nullcontext():
+        for batch in stream:
+            rows.extend(batch)
+            done += len({(r["scene"], r["agent"], r["episode"]) for r in batch})  # (several rows per team episode)
+            if progress is not None and batch:
+                progress(done, total, batch)
     wall = time.perf_counter() - t0
     order = {
         (_scene_name(s), agent_label(a)): k for k, (s, a) in enumerate((s, a) for s in cfg.scenes for a in cfg.agents)
