@@ -101,6 +101,9 @@ def main() -> None:
                         help="with --recipe: read a seed whose run folder is not here from the logs shipped beside "
                              "the recipe's agent in deck_sim/trained (same configuration), rather than train it")
     args = parser.parse_args()
+    # the trainer stops at its checkpoint on Ctrl-C whatever SIGINT this process inherited, so the whole command
+    # hears it too (its demonstrations, final fit and held-out measurement), even as a background job of a script
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
     try:

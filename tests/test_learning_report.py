@@ -218,9 +218,11 @@ def test_ctrl_c_in_one_at_a_time_training_ends_the_command_before_the_next_run(t
 
 
 @pytest.mark.slow
-def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_way_on(tmp_path):
+@pytest.mark.parametrize("inherited", [signal.SIG_DFL, signal.SIG_IGN], ids=["foreground", "background"])
+def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_way_on(tmp_path, inherited):
     """A Ctrl-C while the finished runs' actors are measured on the held-out episodes (no training left) ends the
-    command with code 130 and a line saying to run it again, not with a traceback."""
+    command with code 130 and a line saying to run it again, not with a traceback, also when it was started with
+    SIGINT ignored (a script's background job)."""
     import json
 
     import numpy as np
@@ -237,7 +239,7 @@ def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_w
     def measuring(pid: int) -> bool:  # (the evaluation's worker processes, forked, have started)
         return len(_children(pid, "learning.py")) >= 1
 
-    code, out, err = _ctrl_c(args, measuring, "the held-out measurement did not start")
+    code, out, err = _ctrl_c(args, measuring, "the held-out measurement did not start", inherited)
     assert code == 130 and "Traceback" not in err, err
     assert "stopped during the held-out measurement: run the command again to go on" in out
     assert not list(run.glob("heldout_*.json"))
