@@ -52,7 +52,7 @@ from deck_sim.evaluation import (  # noqa: E402
 )
 from deck_sim.metrics import mean_interval, paired_bootstrap_interval  # noqa: E402
 from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_dir, shipped_logs  # noqa: E402
-from deck_sim.policies.regimes import actor_regime, config_regime, regime_text  # noqa: E402
+from deck_sim.policies.regimes import REGIMES, actor_regime, config_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
 from training.recipes import load_recipe, recipe_names  # noqa: E402
@@ -464,7 +464,7 @@ def main() -> None:
             reward[scene] = found
     recipe_steps = {scene: load_recipe(regime_recipe(scene, "reward")).steps("mddpg") for scene in reward}
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
-    for regime in ("planner", "oracle-teacher"):
+    for regime in (r for r in REGIMES if r != "reward"):  # (the reward regime has its own section)
         other_regimes[regime] = {}
         for scene in scenes:
             if regime_agents(scene, regime) is None:
