@@ -31,7 +31,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
-from learning import read_eval, train_runs  # noqa: E402
+from learning import hear_ctrl_c, read_eval, train_runs  # noqa: E402
 
 from deck_sim.metrics import mean_interval  # noqa: E402
 from training.baseline_config import BASELINE_CONFIGS  # noqa: E402
@@ -97,6 +97,7 @@ def main() -> None:
                         "(Ctrl-C stops every run at its last step with the model saved; run again to resume)")
     parser.add_argument("--no-train", action="store_true", help="report the runs as they stand; train nothing")
     args = parser.parse_args()
+    hear_ctrl_c()
     try:
         recipe = load_recipe(args.recipe)
         algos = args.algos.split(",")

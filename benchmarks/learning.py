@@ -101,9 +101,7 @@ def main() -> None:
                         help="with --recipe: read a seed whose run folder is not here from the logs shipped beside "
                              "the recipe's agent in deck_sim/trained (same configuration), rather than train it")
     args = parser.parse_args()
-    # the trainer stops at its checkpoint on Ctrl-C whatever SIGINT this process inherited, so the whole command
-    # hears it too (its demonstrations, final fit and held-out measurement), even as a background job of a script
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    hear_ctrl_c()
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
     try:
@@ -308,10 +306,20 @@ def _train_job(cfg: object, run: Path, resume: bool, log: Path) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def hear_ctrl_c() -> None:
+    """Make Ctrl-C (SIGINT) raise ``KeyboardInterrupt`` in this process whatever disposition it inherited: a
+    script's background job starts with SIGINT ignored. The trainer stops at its checkpoint on SIGINT either way,
+    so the command around it must hear it too, in every phase (demonstrations, final fit, held-out measurement),
+    or a Ctrl-C sent to the group would stop the running runs and leave it starting the next ones. Called once, by
+    each script's ``main``, before ``train_runs``."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def train_runs(to_train: list[tuple[str, int, Path, object, bool]], jobs: int) -> None:
     """Train the runs of ``to_train`` (arm, seed, run folder, config, resume) in order: in up to ``jobs`` processes
     at once (``train_in_parallel``) or, with one job, here one after another. A run that ends unfinished (Ctrl-C
-    stopped it at its checkpoint) ends the command with code 130 before the next one starts."""
+    stopped it at its checkpoint) ends the command with code 130 before the next one starts. The caller has made
+    this process hear Ctrl-C (``hear_ctrl_c``)."""
     if jobs > 1 and len(to_train) > 1:
         train_in_parallel(to_train, jobs)
         return
@@ -345,11 +353,6 @@ def train_in_parallel(to_train: list[tuple[str, int, Path, object, bool]], jobs:
     running: list[tuple[multiprocessing.process.BaseProcess, Path, Path, float]] = []
     failed: list[str] = []
     print(f"training {len(pending)} runs, {jobs} at a time; each run's progress in <run folder>.log", flush=True)
-    if threading.current_thread() is threading.main_thread():
-        # every run's trainer stops at its checkpoint on SIGINT whatever it inherited, so this process must hear it
-        # too even when started with SIGINT ignored (a background job of a script), or a Ctrl-C sent to the group
-        # would stop the running runs and leave it starting the next ones
-        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         while pending or running:
             while pending and len(running) < jobs:
