@@ -78,8 +78,6 @@ from collections.abc import Iterator, Mapping  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import deck_sim  # noqa: E402
 from deck_sim.agents import AGENTS, names, recipe_name, training_algo  # noqa: E402
 from deck_sim.metrics import summarize  # noqa: E402
@@ -173,7 +171,7 @@ def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
                              f"({', '.join(differ)}), so they are not one recipe and budget; train them again or "
                              "remove one")
     if len(members) == 1:  # one actor of an ensemble shipped before, on its own
-        write_actor(members[0], dest)
+        members[0].save(dest)
         return
     EnsemblePolicy(members, source=str(dest)).save(dest)
 
@@ -185,16 +183,6 @@ def training_of(actor: LearnedPolicy) -> dict[str, Any]:
     config = dict(comparable(actor.meta["config"]))  # (as a resumed run reads it)
     config.pop("seed", None)
     return {**config, "meta_algo": actor.meta.get("algo"), "meta_scene": actor.meta.get("scene")}
-
-
-def write_actor(actor: LearnedPolicy, dest: Path) -> None:
-    """Write one actor (an ensemble's member, say) to ``dest`` as an actor file of its own, atomically."""
-    tmp = dest.with_name(dest.name + ".tmp.npz")
-    try:
-        np.savez_compressed(tmp, meta=np.array(json.dumps(actor.meta)), **actor.arrays)
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, Path], episodes: int,
@@ -211,7 +199,7 @@ def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, 
         path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
         print(f"{label or folder.name}: measuring the actor of seed {seed} taken from the shipped file on {episodes} "
               "held-out episodes", flush=True)
-        write_actor(actor, path)
+        actor.save(path)
         try:
             held_out_record(folder, episodes, per_episode=True)
         finally:

@@ -154,6 +154,28 @@ def test_broken_ensemble_files_give_clear_errors_and_a_failed_save_keeps_the_old
     assert zipfile.is_zipfile(good)
 
 
+def test_an_actor_saved_reads_back_the_same_and_a_failed_save_keeps_the_old_file(tmp_path, monkeypatch):
+    actor = _actor()
+    path = actor.save(tmp_path / "actor.npz")
+    back = load_actor(path)
+    assert isinstance(back, LearnedPolicy) and back.meta == actor.meta
+    assert back.arrays.keys() == actor.arrays.keys()
+    assert all(np.array_equal(back.arrays[k], v) for k, v in actor.arrays.items())
+    obs = {k: np.linspace(-1.0, 1.0, int(np.prod(shape))).reshape(shape) for k, shape in actor.shapes.items()}
+    np.testing.assert_array_equal(back.act(obs), actor.act(obs))
+    before = path.read_bytes()
+
+    def fail(file, *args, **kwargs):  # a write that dies half-way
+        with open(file, "wb") as f:
+            f.write(b"PK\x03\x04 half a file")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", fail)
+    with pytest.raises(OSError, match="disk full"):
+        _perturbed(actor, 1).save(path)
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["actor.npz"]
+
+
 def test_deck_sim_ensemble_joins_actor_files(tmp_path, capsys):
     base = _actor()
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"

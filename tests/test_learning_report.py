@@ -225,15 +225,12 @@ def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_w
     SIGINT ignored (a script's background job)."""
     import json
 
-    import numpy as np
-
     from deck_sim.policies import TRAINED_DIR, load_actor
 
     _run_folder(tmp_path, "deck1-planner-ddpg-seed0", [0.9])
     run = tmp_path / "deck1-planner-ddpg-seed0"
     (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": 0, "total_steps": 50_000}))
-    member = load_actor(TRAINED_DIR / "deck1_ddpg.npz").members[0]  # (one actor, as a run writes)
-    np.savez_compressed(run / "actor.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
+    load_actor(TRAINED_DIR / "deck1_ddpg.npz").members[0].save(run / "actor.npz")  # (one actor, as a run writes)
     args = ["--recipe", "deck1-planner", "--arms", "ddpg", "--seeds", "0", "--no-train", "--out", str(tmp_path)]
 
     def measuring(pid: int) -> bool:  # (the evaluation's worker processes, forked, have started)

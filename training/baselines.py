@@ -41,7 +41,7 @@ import numpy as np
 import deck_sim
 from deck_sim import agents
 from deck_sim.metrics import outcome_of, summarize
-from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy
+from deck_sim.policies import ACTOR_FORMAT_V2, LearnedPolicy, write_actor_file
 from deck_sim.progress import progress as progress_report
 from deck_sim.rollout import git_commit, run_episode
 from deck_sim.wrappers import DeckSimEnv
@@ -192,10 +192,7 @@ def save_sb3_actor(path: str | os.PathLike[str], model: Any, vecnormalize: Any, 
     """Write ``export_sb3``'s file atomically (float32 weights: a few hundred KiB)."""
     arrays, full = export_sb3(model, vecnormalize, algo, meta)
     LearnedPolicy(arrays, full, source=str(path))  # refuse to write a file deck_sim cannot read
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, meta=np.array(json.dumps(full)), **arrays)
-    os.replace(tmp, path)
+    write_actor_file(path, arrays, full)
 
 
 def saved_baseline_config(run_dir: str | os.PathLike[str]) -> BaselineConfig:

@@ -11,7 +11,6 @@ files a finished run ships.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -22,7 +21,7 @@ import numpy as np
 import torch
 
 import deck_sim
-from deck_sim.policies import LearnedPolicy
+from deck_sim.policies import LearnedPolicy, write_actor_file
 from deck_sim.progress import progress as progress_report
 from training.config import TrainConfig
 from training.ddpg import DDPGAgent
@@ -59,10 +58,7 @@ def actor_meta(
 def save_actor(path: str | os.PathLike[str], agent: DDPGAgent, meta: dict[str, Any], averaged: bool = False) -> None:
     """Write the agent's greedy actor (``averaged``: its slow average, ``DDPGAgent.actor_avg``) as a weights-only
     ``.npz`` (atomically)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, meta=np.array(json.dumps(meta)), **agent.export_actor(averaged))
-    os.replace(tmp, path)
+    write_actor_file(path, agent.export_actor(averaged), meta, compress=False)
 
 
 def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:

@@ -26,6 +26,7 @@ from deck_sim.policies.actors import (
     load_actor,
     obstacle_sets,
     set_indices,
+    write_actor_file,
 )
 from deck_sim.policies.reference import TEACHER_VIEWS, Policy, RandomPolicy, ScriptedPolicy, ZeroPolicy
 from deck_sim.policies.registry import (
@@ -94,4 +95,5 @@ __all__ = [
     "shipped_logs",
     "shipped_policy_path",
     "team_policy_overrides",
+    "write_actor_file",
 ]

@@ -216,6 +216,11 @@ class LearnedPolicy:
         arrays, meta = _read_actor_file(path)
         return cls(arrays, meta, source=str(path))
 
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the actor as a weights-only ``.npz`` (compressed) that ``load`` reads back, atomically
+        (``write_actor_file``)."""
+        return write_actor_file(path, self.arrays, self.meta)
+
     @property
     def predictor(self) -> str:
         """The predictor whose forecasts the actor was trained on (``none`` for DDPG)."""
@@ -425,15 +430,8 @@ class EnsemblePolicy:
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the ensemble as one weights-only ``.npz`` (compressed), atomically: a reader finds the old file or
         the new one, never a part; an existing file is untouched if writing fails."""
-        path = Path(path)
         arrays = {f"m{i}/{k}": v for i, m in enumerate(self.members) for k, v in m.arrays.items()}
-        tmp = path.with_name(path.name + ".tmp.npz")
-        try:
-            np.savez_compressed(tmp, meta=np.array(json.dumps(self.meta)), **arrays)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return path
+        return write_actor_file(path, arrays, self.meta)
 
     @property
     def predictor(self) -> str:
@@ -459,6 +457,22 @@ class EnsemblePolicy:
     def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The members' mean action (2,) for one observation dict."""
         return self.act_flat(self.flatten(observation))
+
+
+def write_actor_file(path: str | os.PathLike[str], arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any],
+                     compress: bool = True) -> Path:
+    """Write an actor or ensemble file: ``arrays`` and the JSON ``meta`` record in one ``.npz`` (``compress``:
+    zip-deflated), atomically: a reader finds the old file or the new one, never a part, and an existing file is
+    untouched if writing fails. Returns the path written."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    save = np.savez_compressed if compress else np.savez
+    try:
+        save(tmp, meta=np.array(json.dumps(dict(meta))), **arrays)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def _read_actor_file(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
