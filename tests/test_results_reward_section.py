@@ -145,10 +145,11 @@ def test_shipped_reward_runs_are_read_without_their_run_folders(tmp_path, make_r
         assert all(r["finished"] and r["steps"] == 1_000_000 and len(r["goal_each"]) == 100 for r in runs[algo])
 
 
-def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp_path, make_results):
+def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp_path, make_results,
+                                                                             monkeypatch):
     """MDDPG against DDPG in the ``planner`` regime, read from ``deck1-planner`` run folders like the reward
     regime's; the paper's columns are left out (it learnt from the reward alone), and a scene with such a recipe
-    but no measured run names the command that trains it."""
+    but no measured run names the command that measures its shipped agents, or trains them where none ships."""
     for seed, (m, d) in enumerate([(0.95, 0.9), (0.96, 0.9), (0.97, 0.91)]):
         _run(tmp_path, "mddpg", seed, m, 120.0, steps=160_000, recipe="deck1-planner",
              total=160_000)
@@ -164,6 +165,13 @@ def test_the_planner_regime_gets_its_own_ablation_without_the_papers_columns(tmp
     assert "| deck1 | mddpg | 3: 0, 1, 2 (160,000) | 30 min | 96.0 (93.5 to 98.5) | 95, 96, 97 | " in text
     assert "paper %" not in text and "98 |" not in text.split("| deck1 | mddpg |")[1].splitlines()[0]
     assert "deck1: mddpg - ddpg, success paired over seeds 0, 1, 2: +5.7 points" in text
+    assert "- deck2: no run of `deck2-planner` (mddpg, ddpg) with a held-out record of 100 episodes in this " \
+        "checkout: `python scripts/train_shipped.py --scenes deck2 --algos mddpg-planner,ddpg-planner --redo " \
+        "--episodes-per-run 100` measures each seed of the shipped file (and the shipped agent again)." in text
+    with monkeypatch.context() as patch:  # (where no planner agent ships, the command that trains them)
+        patch.setattr(make_results, "TRAINED_DIR", tmp_path / "nothing-shipped")
+        text = "\n".join(make_results.regime_section({"planner": {"deck1": runs}}, {"planner": {"deck1": 160_000}},
+                                                     100, ["deck1", "deck2"]))
     assert "- deck2: no run of `deck2-planner` (mddpg, ddpg) with a held-out record of 100 episodes in this " \
         "checkout: `python benchmarks/learning.py --recipe deck2-planner --arms mddpg,ddpg` trains them." in text
     assert "square-planner" not in text  # (no such recipe)
