@@ -56,11 +56,9 @@ def test_groups_are_contiguous_and_balanced():
 
 @pytest.mark.slow
 def test_ray_runs_are_reproducible_and_equal_the_local_workers(ray_session, local_two, tmp_path):
-    """Two Ray runs of two actors give the same numbers as each other and as two local worker processes; one Ray
-    actor gives the inline run's."""
+    """A Ray run of two actors gives the same numbers as two local worker processes (as does a resumed Ray run,
+    below: two Ray runs agree through them); one Ray actor gives the inline run's."""
     a = _run(tmp_path / "ray_a", backend="ray", workers=2)
-    b = _run(tmp_path / "ray_b", backend="ray", workers=2)
-    assert_same_run(a, b)
     assert_same_run(a, local_two)
     assert (a.run_dir / "eval.csv").read_text().count("\n") == 4  # step 0 (demonstrations), 40, 80 and the header
     assert any((a.run_dir / "tb").iterdir())
@@ -112,3 +110,16 @@ def test_the_ray_backend_without_ray_names_the_install_command(tmp_path, capsys,
     assert main(["train", "--steps", "40", "--out", str(tmp_path / "run"), "--quiet", "--backend", "ray"]) == 2
     err = capsys.readouterr().err.strip()
     assert "pip install 'deck-sim[ray]'" in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.slow
+def test_an_unreachable_ray_address_is_refused_while_this_process_holds_a_ray(ray_session):
+    """An address given while the process is already connected to a Ray is still checked: no silent use of the
+    Ray it holds instead."""
+    from deck_sim.evaluation import EvalError
+    from deck_sim.evaluation.harness import init_ray
+
+    assert ray_session.is_initialized()
+    with pytest.raises(EvalError, match="no Ray cluster answers there"):
+        init_ray(1, "127.0.0.1:9")
+    assert ray_session.is_initialized()

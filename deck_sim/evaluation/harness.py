@@ -437,16 +437,18 @@ RAY_CONNECT_TIMEOUT_S = 10.0
 
 
 def init_ray(workers: int, address: str | None) -> bool:
-    """Connect this process to Ray unless it is already: to the cluster at ``address`` (checked first,
-    ``check_ray_address``) or to a local Ray started with ``workers`` CPUs. Returns whether this call started or
-    joined it (the caller then shuts it down when done)."""
+    """Connect this process to Ray unless it is already: to the cluster at ``address`` or to a local Ray started
+    with ``workers`` CPUs. An ``address`` is checked first (``check_ray_address``) even when this process is already
+    connected, which then keeps its connection. Returns whether this call started or joined it (the caller then
+    shuts it down when done)."""
     import ray
 
+    if address:
+        check_ray_address(address)  # (an unreachable address fails clearly whatever the process holds)
     if ray.is_initialized():
         return False
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")
     if address:
-        check_ray_address(address)
         ray.init(address=address, log_to_driver=False)
     else:
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
