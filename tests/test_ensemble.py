@@ -31,6 +31,13 @@ def _actor(algo: str = "ddpg", scene: str = "deck1") -> LearnedPolicy:
     return policy.members[0] if isinstance(policy, EnsemblePolicy) else policy
 
 
+def _dies_half_way(file: object, *args: object, **kwargs: object) -> None:
+    """A stand-in for ``np.savez_compressed`` whose write dies half-way: a part of a file, then an error."""
+    with open(file, "wb") as f:
+        f.write(b"PK\x03\x04 half a file")
+    raise OSError("disk full")
+
+
 def _perturbed(actor: LearnedPolicy, seed: int, scale: float = 0.5) -> LearnedPolicy:
     """Another actor on the same observation: the given one's weights plus seeded noise."""
     rng = np.random.default_rng(seed)
@@ -142,12 +149,7 @@ def test_broken_ensemble_files_give_clear_errors_and_a_failed_save_keeps_the_old
 
     before = good.read_bytes()
 
-    def fail(file, *args, **kwargs):  # a write that dies half-way
-        with open(file, "wb") as f:
-            f.write(b"PK\x03\x04 half a file")
-        raise OSError("disk full")
-
-    monkeypatch.setattr(np, "savez_compressed", fail)
+    monkeypatch.setattr(np, "savez_compressed", _dies_half_way)
     with pytest.raises(OSError, match="disk full"):
         EnsemblePolicy([base, base]).save(good)
     assert good.read_bytes() == before and sorted(p.name for p in tmp_path.glob("good*")) == ["good.npz"]
@@ -165,12 +167,7 @@ def test_an_actor_saved_reads_back_the_same_and_a_failed_save_keeps_the_old_file
     np.testing.assert_array_equal(back.act(obs), actor.act(obs))
     before = path.read_bytes()
 
-    def fail(file, *args, **kwargs):  # a write that dies half-way
-        with open(file, "wb") as f:
-            f.write(b"PK\x03\x04 half a file")
-        raise OSError("disk full")
-
-    monkeypatch.setattr(np, "savez_compressed", fail)
+    monkeypatch.setattr(np, "savez_compressed", _dies_half_way)
     with pytest.raises(OSError, match="disk full"):
         _perturbed(actor, 1).save(path)
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["actor.npz"]
