@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from deck_sim.progress import progress as progress_report
 from deck_sim.scenes import load_scene
 from deck_sim.wrappers import DeckSimEnv
 from training.config import CurriculumStage, TrainConfig, demo_episode_seed
+
+if TYPE_CHECKING:
+    from dm_control import composer
 
 log = logging.getLogger(__name__)
 
@@ -115,9 +118,14 @@ class ObservationLayout:
         return np.concatenate(parts)
 
 
+def composer_layout(env: composer.Environment) -> ObservationLayout:
+    """The layout of the flat observations of ``env``, a deck_sim composer environment."""
+    return ObservationLayout({k: tuple(v) for k, v in env.task.observation_shapes.items()})
+
+
 def env_layout(env: DeckSimEnv) -> ObservationLayout:
     """The layout of ``env``'s flat observations."""
-    return ObservationLayout({k: tuple(v) for k, v in env.composer_env.task.observation_shapes.items()})
+    return composer_layout(env.composer_env)
 
 
 def scene_layout(scene: str, predictor: str, overrides: dict[str, Any]) -> ObservationLayout:

@@ -64,7 +64,7 @@ from training.envs import (
     Demonstrations,
     ObservationLayout,
     collect_demonstrations,
-    scene_layout,
+    composer_layout,
     stage_overrides,
 )
 from training.final_fit import actor_meta, finish, save_actor, shipped_actor
@@ -162,6 +162,7 @@ class Trainer:
         self.slots = [self.slot_class(i) for i in range(cfg.num_envs)]
         self.collected = cfg.num_envs
         """Environment steps (transitions) the last collection added."""
+        self._eval_env: Any = None
         self.layout = self._agent_layout()
         self.workers = acting_workers(cfg, backend, workers, self._resume_state, self.run_dir / CHECKPOINT)
         self.envs: Any = None
@@ -191,7 +192,6 @@ class Trainer:
         self.last_eval_step = -1
         self._specs: dict[int, EnvSpec] = {}
         self._real_masks: dict[int, np.ndarray] = {}  # per curriculum stage: ``_real_mask``
-        self._eval_env: Any = None
         self._stop = False
         self._started = False
         self._t_start = time.perf_counter()
@@ -207,9 +207,9 @@ class Trainer:
         return HindsightSampler(geometry, cfg.her_ratio, cfg.n_step, cfg.gamma)
 
     def _agent_layout(self) -> ObservationLayout:
-        """The layout of the agent's observation: the full scene's (every curriculum stage is padded to it)."""
-        cfg = self.config
-        return scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)
+        """The layout of the agent's observation: the full scene's (every curriculum stage is padded to it), read
+        from the held-out episodes' environment, which is the full scene with the agent's predictor (built once)."""
+        return composer_layout(self._eval_environment())
 
     def _make_envs(self, backend: str, ray_address: str | None) -> Any:
         """The runner of the run's environments (``training.runners``)."""

@@ -187,13 +187,6 @@ class TeamTrainer(Trainer):
                               f"{'; '.join(bad)}")
 
     # -- the environments ---------------------------------------------------------------------------------------
-    def _agent_layout(self) -> ObservationLayout:
-        cfg = self.config
-        env = deck_sim.load(cfg.scene, **{**cfg.scene_overrides, "episode__predictor": cfg.predictor})
-        layout = ObservationLayout({k: tuple(v) for k, v in env.task.observation_shapes.items()})
-        env.close()
-        return layout
-
     def _make_envs(self, backend: str, ray_address: str | None) -> TeamEnvs:
         return TeamEnvs(self.config.num_envs, self.config, self.layout)
 
