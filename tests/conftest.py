@@ -52,11 +52,13 @@ def run_steps(env, n, actions=None, seed=0):
 
 
 def short_config(**fields):  # noqa: ANN003, ANN201
-    """A seconds-long run of the tuned recipe on deck 1 (tiny networks, two environments), ``fields`` on top."""
+    """A seconds-long run of the tuned recipe on deck 1 (tiny networks, two environments stepped in the test's own
+    process: a test of the worker process asks for ``env_worker=True``), ``fields`` on top."""
     base = dict(
         scene="deck1",
         total_steps=120,
         num_envs=2,
+        env_worker=False,
         hidden=(32, 32),
         batch_size=32,
         learning_starts=40,

@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,14 +17,27 @@ from training.config import ConfigError, make_config
 from training.loop import CheckpointError, Trainer, load_checkpoint, shipped_actor
 
 
+@pytest.fixture(scope="module")
+def plain_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Trainer, Path]:
+    """A finished short run without the final fit, and its folder: a test copies the folder before resuming it."""
+    plain = Trainer(_short(), tmp_path_factory.mktemp("plain") / "run", progress=False)
+    plain.train()
+    return plain, plain.run_dir
+
+
+def _copy_of(run_dir: Path, to: Path) -> Path:
+    shutil.copytree(run_dir, to)
+    return to
+
+
 @pytest.mark.slow
-def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_path):
+def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_path, plain_run):
     """The final cloning fit lowers the cloning loss over the buffer, adds a marked evaluation at the last step,
     and gives the same actor whether it was asked for from the start or added by resuming the finished run."""
     polished = Trainer(_short(polish_epochs=30), tmp_path / "polished", progress=False)
     polished.train()
-    plain = Trainer(_short(), tmp_path / "plain", progress=False)
-    plain.train()
+    plain = plain_run[0]
+    _copy_of(plain_run[1], tmp_path / "plain")
     rows = np.flatnonzero(plain.buffer.labelled[: plain.buffer.size] > 0)
     assert len(rows) == plain.buffer.size  # demonstrations and relabelled transitions all carry the planner's label
 
@@ -129,7 +144,7 @@ def test_a_dagger_round_labels_the_fitted_actors_own_states_and_fits_again(tmp_p
 
 
 @pytest.mark.slow
-def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_path):
+def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_path, plain_run):
     """``polish_hidden``: the final fit trains a fresh actor of other widths (the critic keeps ``hidden``); the
     exported file has those widths and acts; the polished run resumes with that actor; a finished run can be
     given the wider fit later, and not twice."""
@@ -151,8 +166,7 @@ def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_pa
     for a, b in zip(wide.agent.actor.parameters(), again.agent.actor.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
     # a finished, unpolished run given the wider fit later: the same actor as asking for it from the start
-    Trainer(_short(), tmp_path / "later", progress=False).train()
-    Trainer(cfg, tmp_path / "later", resume=True, progress=False).train()
+    Trainer(cfg, _copy_of(plain_run[1], tmp_path / "later"), resume=True, progress=False).train()
     with np.load(tmp_path / "wide" / "actor.npz") as a, np.load(tmp_path / "later" / "actor.npz") as b:
         for k in a.files:
             if k != "meta":
