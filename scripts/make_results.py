@@ -168,6 +168,15 @@ def regime_recipe(scene: str, regime: str) -> str:
     return found[0]
 
 
+def recipe_seeds(scene: str, regime: str) -> dict[str, tuple[int, ...]]:
+    """The training seeds of each algorithm of ``scene``'s recipe of ``regime`` (``regime_agents``); empty where the
+    scene has no such recipe."""
+    if (found := regime_agents(scene, regime)) is None:
+        return {}
+    recipe = load_recipe(found[0])
+    return {algo: recipe.seeds(algo) for algo in recipe.algos}
+
+
 def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
                 algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
     """Every run of ``scene``'s recipe of ``regime`` (``regime_agents``; ``algos`` of it, default all), each
@@ -235,7 +244,8 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         "--recipe <scene>-reward` trains the runs and prints the same figures). Means over seeds with their "
         "Student-t 95 % interval over seeds; path and turning over successful episodes.",
         "",
-        *seed_table(reward, recipe_steps, paper=True),
+        *seed_table(reward, recipe_steps, paper=True,
+                    seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}),
     ]
 
 
@@ -259,7 +269,8 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         lines.append(f"### {regime}")
         lines.append("")
         if by_scene:
-            lines += seed_table(by_scene, recipe_steps[regime], paper=False)
+            lines += seed_table(by_scene, recipe_steps[regime], paper=False,
+                                seeds_of={scene: recipe_seeds(scene, regime) for scene in by_scene})
         for scene, (recipe, by_algo) in with_recipe.items():
             lacking = [a for a in ("mddpg", "ddpg") if a not in by_scene.get(scene, {})]
             if not lacking:
@@ -277,10 +288,12 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
     return lines
 
 
-def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool) -> list[str]:
+def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool,
+               seeds_of: dict[str, dict[str, tuple[int, ...]]] | None = None) -> list[str]:
     """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
     time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning,
-    over the seeds that finished their recipe's budget (every seed while none has; the others are named);
+    over the seeds that finished their recipe's budget (every seed while none has; the others are named, as are
+    the recipe's seeds of ``seeds_of`` (``{scene: {algo: seeds}}``, ``recipe_seeds``) that have no actor yet);
     with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``,
     which name the paper's direction only with ``paper``)."""
     lines = [
@@ -302,6 +315,10 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
                                             f"{recipe_steps[scene]:,} steps), left out" for r in training)
             else:
                 seeds += f"{'' if not training else f'; of {recipe_steps[scene]:,}, still training'})"
+            absent = [k for k in (seeds_of or {}).get(scene, {}).get(algo, ()) if k not in {r["seed"] for r in every}]
+            if absent:
+                seeds += (f"; seed{'s' if len(absent) > 1 else ''} {', '.join(map(str, absent))} without an actor "
+                          "in this checkout (not trained, or stopped before its first evaluation), left out")
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)
             row = (f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
                    f"{_interval([r['success'] for r in recs])} | {each} | ")

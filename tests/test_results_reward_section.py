@@ -98,6 +98,30 @@ def test_a_seed_still_training_is_shown_but_left_out_of_the_comparisons(tmp_path
     assert not any("turns" in x for x in lines)
 
 
+def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, make_results):
+    """A seed whose run stopped before its first evaluation (a folder without an actor), or was never started, is
+    named in its row, not dropped silently (the square's reward runs ship no logs to fill it in)."""
+    for seed in (0, 1):
+        _run(tmp_path, "mddpg", seed, 0.6, 200.0, recipe="square-reward")
+    stopped = tmp_path / "square-reward-mddpg-seed2"
+    stopped.mkdir()
+    (stopped / "config.json").write_text(json.dumps({"scene": "square", "seed": 2, "total_steps": 1_000_000}))
+    runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
+    assert [r["seed"] for r in runs["mddpg"]] == [0, 1]
+    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
+        "| square | mddpg |")[1].splitlines()[0]
+    assert " 2: 0, 1 (1,000,000); seed 2 without an actor in this checkout (not trained, or stopped before its first " \
+        "evaluation), left out | " in row
+    shutil.rmtree(stopped)
+    (tmp_path / "square-reward-mddpg-seed1").rename(tmp_path / "elsewhere")  # seeds 1 and 2 never trained here
+    runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
+    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
+        "| square | mddpg |")[1].splitlines()[0]
+    assert " 1: 0 (1,000,000); seeds 1, 2 without an actor in this checkout" in row
+    assert "without an actor" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
+                                                                         paper=True))  # (no recipe seeds given)
+
+
 def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, make_results):
     # each seed 5 points apart, so the interval over seeds has no width, but MDDPG wins 15 episodes and loses 10 on
     # each: over seeds and episodes the difference is not separated from zero
