@@ -22,6 +22,7 @@ from deck_sim.policies import (
     make_policy,
     seeds_text,
     shipped_logs,
+    write_actor_file,
 )
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
@@ -110,7 +111,7 @@ def test_corrupt_or_inconsistent_exports_give_clear_errors(runs, tmp_path):
     def broken(name: str, meta_changes: dict | None = None, drop: str | None = None, **array_changes):
         path = tmp_path / name
         out = {k: v for k, v in {**arrays, **array_changes}.items() if k != drop}
-        np.savez(path, meta=np.array(json.dumps({**meta, **(meta_changes or {})})), **out)
+        write_actor_file(path, out, {**meta, **(meta_changes or {})}, compress=False)
         return path
 
     with pytest.raises(PolicyFileError, match="no_table.npz: not a complete deck_sim actor.*action_table"):
@@ -289,7 +290,7 @@ def test_several_runs_ship_as_one_ensemble_with_every_runs_log(tmp_path, monkeyp
         arrays = {k: (v * (1.0 + 0.01 * seed)).astype(v.dtype) if k.startswith("w") else v
                   for k, v in actor.arrays.items()}
         meta = {**actor.meta, "polished": True, "config": {**actor.meta["config"], "seed": seed}}
-        np.savez(run / "actor.npz", meta=np.array(json.dumps(meta)), **arrays)
+        write_actor_file(run / "actor.npz", arrays, meta, compress=False)
         (run / "eval.csv").write_text(f"step,wall_s,success\n1000,{wall / 2},0.5\n2000,{wall},0.7\n")
         (run / "config.json").write_text(json.dumps({"seed": seed}))
         runs.append(run)
@@ -399,8 +400,8 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     dqn_logs = {0: source / "dqn-reward" / "seed0", 1: source / "dqn-reward" / "seed1", 2: source / "dqn-reward"}
     dqn = load_actor(trained / "deck1_dqn-reward.npz")
     dqn_actor = tmp_path / "dqn.npz"  # seed 1's stand-in: the shipped run's actor, its weights scaled
-    np.savez(dqn_actor, meta=np.array(json.dumps({**dqn.meta, "config": {**dqn.meta["config"], "seed": 1}})),
-             **{k: v * 1.01 if k.startswith("w") else v for k, v in dqn.arrays.items()})
+    write_actor_file(dqn_actor, {k: v * 1.01 if k.startswith("w") else v for k, v in dqn.arrays.items()},
+                     {**dqn.meta, "config": {**dqn.meta["config"], "seed": 1}}, compress=False)
     seed1_best = [None]  # a best periodic evaluation for seed 1 other than its shipped log's
     calls = []
 
@@ -411,7 +412,7 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
             shutil.copyfile(dqn_actor, run / "actor_best.npz")
         else:
             member = members[seed]
-            np.savez(run / "actor_best.npz", meta=np.array(json.dumps(member.meta)), **member.arrays)
+            write_actor_file(run / "actor_best.npz", member.arrays, member.meta, compress=False)
         shutil.copyfile(run / "actor_best.npz", run / "actor.npz")
         logs = dqn_logs if algo == "dqn-reward" else source_logs
         for name in ("eval.csv", "config.json", "heldout_100.json"):

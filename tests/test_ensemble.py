@@ -21,6 +21,7 @@ from deck_sim.policies import (
     load_actor,
     make_policy,
     shipped_policy_path,
+    write_actor_file,
 )
 from deck_sim.rollout import run_episode
 
@@ -127,7 +128,7 @@ def test_broken_ensemble_files_give_clear_errors_and_a_failed_save_keeps_the_old
 
     def write(name: str, arrays: dict, meta: dict):
         path = tmp_path / name
-        np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
+        write_actor_file(path, arrays, meta, compress=False)
         return path
 
     missing = {k: v for k, v in arrays.items() if k != "m1/w1"}
@@ -177,7 +178,7 @@ def test_deck_sim_ensemble_joins_actor_files(tmp_path, capsys):
     base = _actor()
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     for path, actor in ((a, base), (b, _perturbed(base, 3))):
-        np.savez(path, meta=np.array(json.dumps(actor.meta)), **actor.arrays)
+        write_actor_file(path, actor.arrays, actor.meta, compress=False)
     out = tmp_path / "ab.npz"
     assert cli(["ensemble", str(a), str(b), "--out", str(out)]) == 0
     assert "2 ddpg actors of scene 'deck1'" in capsys.readouterr().out
@@ -188,7 +189,7 @@ def test_deck_sim_ensemble_joins_actor_files(tmp_path, capsys):
     assert "one of the actors" in capsys.readouterr().err and a.read_bytes() == before
     mddpg = tmp_path / "m.npz"
     m = _actor("mddpg", "deck1")
-    np.savez(mddpg, meta=np.array(json.dumps(m.meta)), **m.arrays)
+    write_actor_file(mddpg, m.arrays, m.meta, compress=False)
     assert cli(["ensemble", str(a), str(mddpg), "--out", str(tmp_path / "mixed.npz")]) == 2
     assert "reads observation" in capsys.readouterr().err and not (tmp_path / "mixed.npz").exists()
     assert cli(["ensemble", str(a), str(tmp_path / "nope.npz"), "--out", str(tmp_path / "x.npz")]) == 2
