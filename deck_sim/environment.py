@@ -66,17 +66,7 @@ class DeckEnvironment(composer.Environment):
     composer's one substep per control step calls ``mujoco.mj_step`` itself, without dm_control's warning
     bookkeeping around it (``Physics.check_invalid_state``): the task already checks MuJoCo's divergence warnings
     over the whole control step and ends a diverged episode cleanly, so the check was done twice.
-
-    The model compiled at construction serves the first episode too: composer compiles it a second time at the
-    first reset, for tasks and entities that edit the MJCF before each episode (``initialize_episode_mjcf``), and
-    deck_sim's edit nothing (layouts move bodies in the compiled physics). Where the task or an entity does
-    override ``initialize_episode_mjcf``, composer's second compile stays.
     """
-
-    def __init__(self, task: composer.Task, **kwargs: Any) -> None:
-        super().__init__(task, **kwargs)
-        if not self._recompile_mjcf_every_episode and not _edits_mjcf_per_episode(task):
-            self._mjcf_never_compiled = False  # (composer's flag for that second compile)
 
     def _substep(self, action: np.ndarray) -> None:
         if not isinstance(self._task, Navigate):
@@ -97,16 +87,6 @@ class DeckEnvironment(composer.Environment):
         return _PlainUpdater(
             self._task.observables, self._task.physics_steps_per_control_step, self._strip_singleton_obs_buffer_dim
         )
-
-
-def _edits_mjcf_per_episode(task: composer.Task) -> bool:
-    """Whether ``task`` or one of its entities overrides composer's ``initialize_episode_mjcf`` hook."""
-    if type(task).initialize_episode_mjcf is not composer.Task.initialize_episode_mjcf:
-        return True
-    return any(
-        type(entity).initialize_episode_mjcf is not composer.Entity.initialize_episode_mjcf
-        for entity in task.root_entity.iter_entities()
-    )
 
 
 def make_environment(
