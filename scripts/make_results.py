@@ -235,7 +235,8 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
-    seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed."""
+    seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed;
+    a line naming each agent of a recipe without any run."""
     return [
         "The paper's protocol: reinforcement learning from the reward alone (no demonstrations, no planner labels, no "
         "cloning, no final fit), `training/recipes/<scene>-reward.toml`, one run per training seed, at most "
@@ -246,6 +247,10 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         "",
         *seed_table(reward, recipe_steps, paper=True,
                     seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}),
+        *[f"- {scene}: {algo}: no run of `{regime_recipe(scene, 'reward')}` (seeds {', '.join(map(str, seeds))}) "
+          f"with a held-out record of {episodes} episodes in this checkout: `python benchmarks/learning.py --recipe "
+          f"{regime_recipe(scene, 'reward')} --arms {algo}` trains them."
+          for scene in reward for algo, seeds in recipe_seeds(scene, "reward").items() if algo not in reward[scene]],
     ]
 
 
@@ -293,7 +298,7 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
     """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
     time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning,
     over the seeds that finished their recipe's budget (every seed while none has; the others are named, as are
-    the recipe's seeds of ``seeds_of`` (``{scene: {algo: seeds}}``, ``recipe_seeds``) that have no actor yet);
+    the recipe's seeds of ``seeds_of`` (``{scene: {algo: seeds}}``, ``recipe_seeds``) that have no record);
     with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``,
     which name the paper's direction only with ``paper``)."""
     lines = [
@@ -317,8 +322,9 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
                 seeds += f"{'' if not training else f'; of {recipe_steps[scene]:,}, still training'})"
             absent = [k for k in (seeds_of or {}).get(scene, {}).get(algo, ()) if k not in {r["seed"] for r in every}]
             if absent:
-                seeds += (f"; seed{'s' if len(absent) > 1 else ''} {', '.join(map(str, absent))} without an actor "
-                          "in this checkout (not trained, or stopped before its first evaluation), left out")
+                seeds += (f"; seed{'s' if len(absent) > 1 else ''} {', '.join(map(str, absent))} with no held-out "
+                          "record in this checkout (not trained here, stopped before its first evaluation, or "
+                          "unreadable), left out")
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)
             row = (f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
                    f"{_interval([r['success'] for r in recs])} | {each} | ")

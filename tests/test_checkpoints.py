@@ -17,12 +17,13 @@ from training.loop import CheckpointError, Trainer, load_checkpoint
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "fields",
-    [{}, {"bc_weight_final": 2.0, "bc_slow_weight": 3.0, "learner_precision": "bfloat16"}],
+    [{"env_worker": True}, {"bc_weight_final": 2.0, "bc_slow_weight": 3.0, "learner_precision": "bfloat16"}],
     ids=["tuned", "schedule-bfloat16"],
 )
 def test_a_stopped_and_resumed_run_equals_an_unbroken_one(tmp_path, fields):
-    """...also with a falling cloning weight, which the resumed run must take up at the step it stopped at (that
-    run's updates in bfloat16)."""
+    """A run stopped mid-episode (its environments in the worker process) and resumed equals the unbroken run;
+    also with a falling cloning weight, which the resumed run must take up at the step it stopped at (that run's
+    updates in bfloat16, its environments inline)."""
     whole = Trainer(_short(**fields), tmp_path / "whole", progress=False)
     whole.train()
     first = Trainer(_short(**fields), tmp_path / "broken", progress=False)

@@ -105,9 +105,9 @@ def test_hold_settings_are_checked():
 
 @pytest.mark.slow
 def test_a_run_with_held_stops_stores_them_and_resumes_exactly(tmp_path):
-    cfg = short_config(
+    cfg = short_config(  # (the environments in the worker process: held rows go through its pipe)
         demo_episodes=0, pretrain_updates=0, bc_weight=0.0, expert_relabel=False, hold_prob=0.2, hold_steps=4,
-        noise_sigma=0.3, noise_sigma_final=0.3,
+        noise_sigma=0.3, noise_sigma_final=0.3, env_worker=True,
     )
     whole = Trainer(cfg, tmp_path / "whole", progress=False)
     whole.train()

@@ -175,7 +175,7 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
     """Started with SIGINT ignored, as a script's background job is, Ctrl-C to the group still stops the command,
     not only its runs (reward-ddpg steps its 8 environments in a worker process, which Ctrl-C reaches too); an
     impatient second Ctrl-C while it waits changes nothing and prints no traceback."""
-    args = ["--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "1600", "--eval-every", "800",
+    args = ["--arms", "reward-ddpg", "--seeds", "0,1", "--steps", "2400", "--eval-every", "1200",
             "--eval-episodes", "1", "--out", str(tmp_path), "--jobs", "2"]
     runs = [tmp_path / f"deck1-reward-ddpg-seed{seed}" for seed in (0, 1)]
     code, out, err = _ctrl_c(args, _logged(*runs), "the runs logged no 1,000 steps", signal.SIG_IGN, twice=True)
@@ -189,7 +189,7 @@ def test_ctrl_c_stops_every_job_at_a_checkpoint_and_running_again_finishes_them(
     for run in runs:
         assert f"-> {run} (resuming)" in again.stdout and f"finished {run.name} in" in again.stdout
         assert (run / "actor.npz").exists()
-        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("1600,")
+        assert (run / "eval.csv").read_text().splitlines()[-1].startswith("2400,")
 
 
 @pytest.mark.slow

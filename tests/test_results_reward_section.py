@@ -110,15 +110,21 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
     assert [r["seed"] for r in runs["mddpg"]] == [0, 1]
     row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
         "| square | mddpg |")[1].splitlines()[0]
-    assert " 2: 0, 1 (1,000,000); seed 2 without an actor in this checkout (not trained, or stopped before its first " \
-        "evaluation), left out | " in row
+    assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record in this checkout (not trained here, stopped before " \
+        "its first evaluation, or unreadable), left out | " in row
+    lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)
+    for algo in ("ddpg", "dqn", "a2c"):  # (agents of the recipe without any run)
+        assert f"- square: {algo}: no run of `square-reward` (seeds 0, 1, 2) with a held-out record of 100 episodes " \
+            f"in this checkout: `python benchmarks/learning.py --recipe square-reward --arms {algo}` trains them." \
+            in lines
+    assert not any(line.startswith("- square: mddpg: no run") for line in lines)
     shutil.rmtree(stopped)
     (tmp_path / "square-reward-mddpg-seed1").rename(tmp_path / "elsewhere")  # seeds 1 and 2 never trained here
     runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
     row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
         "| square | mddpg |")[1].splitlines()[0]
-    assert " 1: 0 (1,000,000); seeds 1, 2 without an actor in this checkout" in row
-    assert "without an actor" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
+    assert " 1: 0 (1,000,000); seeds 1, 2 with no held-out record in this checkout" in row
+    assert "no held-out record" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
                                                                          paper=True))  # (no recipe seeds given)
 
 

@@ -136,6 +136,12 @@ def test_what_several_aircraft_cannot_take_is_refused_by_name(tmp_path, fields, 
     assert not (tmp_path / "run").exists()  # nothing written
 
 
+def test_the_single_aircraft_loop_refuses_a_scene_of_several_before_writing(tmp_path):
+    with pytest.raises(ConfigError, match="puts several aircraft on the deck: train it with training.team.TeamTrainer"):
+        Trainer(_team(), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
 def test_make_trainer_keeps_one_aircraft_on_the_single_agent_loop(tmp_path):
     trainer = make_trainer(_short(total_steps=40, demo_episodes=0, pretrain_updates=0), tmp_path / "run",
                            progress=False)

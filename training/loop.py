@@ -124,6 +124,8 @@ class Trainer:
 
     slot_class: type[_Slot] = _Slot
     """What each environment's slot records (a subclass may record more)."""
+    several_aircraft: bool = False
+    """Whether the trainer takes scenes of several aircraft (``training.team.TeamTrainer``)."""
 
     def __init__(
         self,
@@ -136,8 +138,12 @@ class Trainer:
         ray_address: str | None = None,
     ) -> None:
         self.config = config.validate()
-        if config.her_ratio > 0.0 and load_scene(config.scene, **config.scene_overrides).episode.route_steps > 0:
-            raise ConfigError(f"her_ratio: {ROUTE_REFUSAL}")  # (before the run folder is made)
+        scene = load_scene(config.scene, **config.scene_overrides)  # (checked before the run folder is made)
+        if scene.multi_agent and not self.several_aircraft:
+            raise ConfigError(f"scene {config.scene!r} puts several aircraft on the deck: train it with "
+                              "training.team.TeamTrainer (deck-sim train and training.team.make_trainer pick it)")
+        if config.her_ratio > 0.0 and scene.episode.route_steps > 0:
+            raise ConfigError(f"her_ratio: {ROUTE_REFUSAL}")
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.commit = git_commit()  # the code this process runs, whatever the tree holds when an actor is written

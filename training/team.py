@@ -167,6 +167,7 @@ class TeamTrainer(Trainer):
         ConfigError: the scene has one aircraft, or the config asks for what several aircraft do not support.
     """
 
+    several_aircraft = True
     slot_class = _TeamSlot
 
     def __init__(self, config: TrainConfig, run_dir: str | os.PathLike[str], **kwargs: Any) -> None:
