@@ -26,7 +26,7 @@ MDDPG and DDPG of a scene train for the same number of environment steps; DQN an
 A run folder that already holds a checkpoint is resumed; one with a final ``actor.npz`` is not trained again. The
 shipped actor of each run (``shipped_actor``: the final actor of a recipe that ends with the cloning fit, else the
 one with the best periodic held-out evaluation on the seed-500 stream) is copied, or the runs' actors joined, to
-``deck_sim/trained/<scene>_<algo>.npz`` (weights only, a few hundred KiB per actor) and measured on ``--episodes``
+``deck_sim/trained/<scene>_<algo>.npz`` (weights only: no buffer, no optimiser state) and measured on ``--episodes``
 further held-out episodes, the stream of ``deck-sim run --scene <scene> --policy <algo> --seed 1000`` (never a
 training, demonstration or selection episode). The figures go to ``deck_sim/trained/results.json``
 (``{scene: {algo: figures}}``) and ``deck_sim/trained/README.md``, written by this script, never by hand, as is

@@ -511,8 +511,8 @@ def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_t
     members = script.shipped_members(shipped)
     assert members[0].meta["config"]["extra"]["recipe"] != "deck1"  # (the name it was trained under)
     steps = script.default_steps("deck1", "mddpg")
-    runs = [script.run_folder(tmp_path / "runs", "deck1", "mddpg", s) for s in (0, 1, 2)]
-    assert sorted(script.kept_seeds(shipped, "deck1", "mddpg", steps, (0, 1, 2), runs, {})) == [0, 1]
+    runs = [script.run_folder(tmp_path / "runs", "deck1", "mddpg", s) for s in (0, 1, 2, 3)]
+    assert sorted(script.kept_seeds(shipped, "deck1", "mddpg", steps, (0, 1, 2, 3), runs, {})) == [0, 1, 2]
 
     staged = script.stage_shipped_logs("deck1", "mddpg", {0, 1}, tmp_path / "staging", episodes=2)
     assert "hold no heldout_2.json" in capsys.readouterr().out

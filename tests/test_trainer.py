@@ -207,10 +207,12 @@ def test_actor_files_refuse_garbage_and_the_wrong_scene(tmp_path, capsys):
 @pytest.mark.parametrize("scene", ["deck1", "deck2", "square"])
 def test_the_shipped_policies_load_and_act_on_their_scene(scene):
     import deck_sim
-    from deck_sim.policies import make_policy, policy_overrides, shipped_policy_path
+    from deck_sim.policies import EnsemblePolicy, load_actor, make_policy, policy_overrides, shipped_policy_path
 
     path = shipped_policy_path("mddpg", scene)
-    assert path.stat().st_size < 2 * 1024 * 1024  # small, weights only
+    shipped = load_actor(path)
+    members = len(shipped.members) if isinstance(shipped, EnsemblePolicy) else 1
+    assert path.stat().st_size < members * 1.25 * 1024 * 1024  # small: weights only, no buffer or optimiser state
     overrides = policy_overrides("mddpg", scene)  # the actor's own observation options
     assert overrides["episode__predictor"] == "mpc"
     env = deck_sim.load(scene, seed=1000, **overrides)
