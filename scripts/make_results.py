@@ -236,7 +236,7 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
     seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed;
-    a line naming each agent of a recipe without any run."""
+    a line naming the recipe's agents without any run (``lacking_lines``)."""
     return [
         "The paper's protocol: reinforcement learning from the reward alone (no demonstrations, no planner labels, no "
         "cloning, no final fit), `training/recipes/<scene>-reward.toml`, one run per training seed, at most "
@@ -247,10 +247,8 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         "",
         *seed_table(reward, recipe_steps, paper=True,
                     seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}),
-        *[f"- {scene}: {algo}: no run of `{regime_recipe(scene, 'reward')}` (seeds {', '.join(map(str, seeds))}) "
-          f"with a held-out record of {episodes} episodes in this checkout: `python benchmarks/learning.py --recipe "
-          f"{regime_recipe(scene, 'reward')} --arms {algo}` trains them."
-          for scene in reward for algo, seeds in recipe_seeds(scene, "reward").items() if algo not in reward[scene]],
+        *[line for scene in reward
+          for line in lacking_lines(scene, "reward", reward[scene], tuple(recipe_seeds(scene, "reward")), episodes)],
     ]
 
 
@@ -276,21 +274,29 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
         if by_scene:
             lines += seed_table(by_scene, recipe_steps[regime], paper=False,
                                 seeds_of={scene: recipe_seeds(scene, regime) for scene in by_scene})
-        for scene, (recipe, by_algo) in with_recipe.items():
-            lacking = [a for a in ("mddpg", "ddpg") if a not in by_scene.get(scene, {})]
-            if not lacking:
-                continue
-            agents = ",".join(by_algo.get(a, a) for a in lacking)
-            if all(a in by_algo and (TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
-                how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo "
-                       f"--episodes-per-run {episodes}` measures each seed of the shipped file (and the shipped agent "
-                       "again)")
-            else:
-                how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(lacking)}` trains them"
-            lines.append(f"- {scene}: no run of `{recipe}` ({', '.join(lacking)}) with a held-out record of "
-                         f"{episodes} episodes in this checkout: {how}.")
+        for scene in with_recipe:
+            lines += lacking_lines(scene, regime, by_scene.get(scene, {}), ("mddpg", "ddpg"), episodes)
         lines.append("")
     return lines
+
+
+def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: tuple[str, ...],
+                  episodes: int) -> list[str]:
+    """One line naming the ``algos`` of ``scene``'s recipe of ``regime`` that have no run in ``found`` (``{algo:
+    records}``), with the command that measures them: ``train_shipped.py`` where each is shipped, else
+    ``learning.py``; none if nothing lacks."""
+    recipe, by_algo = regime_agents(scene, regime)
+    lacking = [a for a in algos if a not in found]
+    if not lacking:
+        return []
+    agents = ",".join(by_algo.get(a, a) for a in lacking)
+    if all(a in by_algo and (TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
+        how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo --episodes-per-run "
+               f"{episodes}` measures each seed of the shipped file (and the shipped agent again)")
+    else:
+        how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(lacking)}` trains them"
+    return [f"- {scene}: no run of `{recipe}` ({', '.join(lacking)}) with a held-out record of {episodes} episodes "
+            f"in this checkout: {how}."]
 
 
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool,

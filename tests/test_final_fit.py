@@ -18,11 +18,11 @@ from training.loop import CheckpointError, Trainer, load_checkpoint, shipped_act
 
 
 @pytest.fixture(scope="module")
-def plain_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Trainer, Path]:
-    """A finished short run without the final fit, and its folder: a test copies the folder before resuming it."""
+def plain_run(tmp_path_factory: pytest.TempPathFactory) -> Trainer:
+    """A finished short run without the final fit: a test copies its folder before resuming it."""
     plain = Trainer(_short(), tmp_path_factory.mktemp("plain") / "run", progress=False)
     plain.train()
-    return plain, plain.run_dir
+    return plain
 
 
 def _copy_of(run_dir: Path, to: Path) -> Path:
@@ -36,8 +36,8 @@ def test_polishing_fits_the_buffer_and_a_finished_run_can_be_polished_later(tmp_
     and gives the same actor whether it was asked for from the start or added by resuming the finished run."""
     polished = Trainer(_short(polish_epochs=30), tmp_path / "polished", progress=False)
     polished.train()
-    plain = plain_run[0]
-    _copy_of(plain_run[1], tmp_path / "plain")
+    plain = plain_run
+    _copy_of(plain.run_dir, tmp_path / "plain")
     rows = np.flatnonzero(plain.buffer.labelled[: plain.buffer.size] > 0)
     assert len(rows) == plain.buffer.size  # demonstrations and relabelled transitions all carry the planner's label
 
@@ -166,7 +166,7 @@ def test_a_wider_final_fit_exports_an_actor_of_its_own_widths_and_resumes(tmp_pa
     for a, b in zip(wide.agent.actor.parameters(), again.agent.actor.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
     # a finished, unpolished run given the wider fit later: the same actor as asking for it from the start
-    Trainer(cfg, _copy_of(plain_run[1], tmp_path / "later"), resume=True, progress=False).train()
+    Trainer(cfg, _copy_of(plain_run.run_dir, tmp_path / "later"), resume=True, progress=False).train()
     with np.load(tmp_path / "wide" / "actor.npz") as a, np.load(tmp_path / "later" / "actor.npz") as b:
         for k in a.files:
             if k != "meta":
