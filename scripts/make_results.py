@@ -387,17 +387,20 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True)
                    f"{100 * m:+.1f} points, {verdict}{ranks}.")
     done = {a: [r for r in algos.get(a, []) if r["finished"]] for a in ("mddpg", "ddpg")}
     if done["mddpg"] and done["ddpg"]:
-        for key, paper_key, more, less, what, unit, paper_unit in (
-            ("turning_deg", "turning_deg", "more", "less", " turns {} than DDPG", "deg per successful episode", "deg"),
-            ("path_ratio", "path_length", "longer", "shorter", "'s paths are {} than DDPG's", "of the shortest",
-             "Unity units"),
+        for key, paper_key, more, less, same, what, unit, paper_unit in (
+            ("turning_deg", "turning_deg", "more than", "less than", "as much as", " turns {} DDPG",
+             "deg per successful episode", "deg"),
+            ("path_ratio", "path_length", "longer than", "shorter than", "as long as", "'s paths are {} DDPG's",
+             "of the shortest", "Unity units"),
         ):
             m, d = (float(np.mean([r[key] for r in done[a]])) for a in ("mddpg", "ddpg"))
             pm, pd = (PAPER[paper_key].get(scene, {}).get(a) for a in ("mddpg", "ddpg"))
             theirs = "" if pm is None or not paper else \
-                f"; the paper's MDDPG {more if pm > pd else less} ({pm:.2f} against {pd:.2f} {paper_unit})"
+                f"; the paper's MDDPG {(more if pm > pd else less).split()[0]} ({pm:.2f} against {pd:.2f} {paper_unit})"
             spec = ".0f" if key == "turning_deg" else ".3f"
-            out.append(f"- {scene}: MDDPG{what.format(more if m > d else less)} ({m:{spec}} against {d:{spec}} {unit}, "
+            # equal at the printed precision: "more" or "less" would contradict the figures beside it
+            how = same if f"{m:{spec}}" == f"{d:{spec}}" else more if m > d else less
+            out.append(f"- {scene}: MDDPG{what.format(how)} ({m:{spec}} against {d:{spec}} {unit}, "
                        f"means over the finished seeds){theirs}.")
     return out
 

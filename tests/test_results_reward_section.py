@@ -140,6 +140,21 @@ def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, m
         lines[0] and "over seeds and episodes, paired by episode)" in lines[0]
 
 
+def test_means_equal_at_the_printed_precision_are_called_equal(tmp_path, make_results):
+    _run(tmp_path, "mddpg", 0, 0.9, 150.2)
+    _run(tmp_path, "ddpg", 0, 0.8, 149.9)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    runs = {algo: [r for r in recs if r["seed"] == 0] for algo, recs in runs.items()}
+    runs["mddpg"][0]["path_ratio"] = 1.0484
+    runs["ddpg"][0]["path_ratio"] = 1.0476  # both print as 1.048
+    text = "\n".join(make_results.ablation_lines("deck1", runs))
+    assert "MDDPG turns as much as DDPG (150 against 150 deg" in text
+    assert "MDDPG's paths are as long as DDPG's (1.048 against 1.048 of the shortest" in text
+    runs["ddpg"][0]["path_ratio"] = 1.0464
+    assert "MDDPG's paths are longer than DDPG's (1.048 against 1.046" in "\n".join(
+        make_results.ablation_lines("deck1", runs))
+
+
 def test_one_seed_gives_its_episodes_interval_but_no_verdict(tmp_path, make_results):
     _run(tmp_path, "mddpg", 0, 0.9, 200.0)
     _run(tmp_path, "ddpg", 0, 0.8, 150.0)
