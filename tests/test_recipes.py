@@ -67,7 +67,7 @@ def test_train_help_lists_every_shipped_recipe(capsys):
     assert listed.split(", ") == recipe_names()
 
 
-SHIPPED_SEEDS = {"deck1": (0, 1, 2), "deck2": (0, 1, 2), "square": (0, 1)}
+SHIPPED_SEEDS = {"deck1": (0, 1, 2), "deck2": (0, 1, 2), "square": (0, 1, 2)}
 """The training seeds behind each scene's shipped oracle-teacher MDDPG and DDPG files."""
 
 
