@@ -50,7 +50,7 @@ def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make
     # an algorithm without run folders is read from the logs shipped beside its reward-regime actor, if any
     shipped = {a for a in ("dqn", "a2c") if (shipped_log_dir(f"{a}-reward", "deck1") / "eval.csv").exists()}
     assert set(runs) == {"mddpg", "ddpg", *shipped}
-    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
+    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100, ["deck1"]))
     # MDDPG: 90, 92, 94 -> mean 92, sd 2, t(2) 4.303 -> +- 4.97
     assert "| deck1 | mddpg | 3: 0, 1, 2 (1,000,000) | 30 min | 92.0 (87.0 to 97.0) | 90, 92, 94 | 98 |" in text
     # differences 10, 12, 12 points: mean 11.3, sd 1.15, half-width 2.87; every episode MDDPG wins is one DDPG
@@ -61,6 +61,7 @@ def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make
     targets = "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
     assert "on deck1: 92.0 % (mean of 3 seed(s)) against the target of 90 % and the paper's 98 %: met." in targets
     assert "MDDPG from the reward alone on deck2: no run yet" in targets
+    assert "MDDPG from the reward alone on square: no run yet (no target: the paper reports the decks only" in targets
     runs["mddpg"][2]["finished"] = False  # a seed still training: no verdict yet, and the mean of the others
     assert "on deck1: 91.0 % (mean of the 2 finished seed(s)) against the target of 90 % and the paper's 98 %: not " \
         "decided: 3 seed(s), 2 finished" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
@@ -75,14 +76,14 @@ def test_a_seed_still_training_is_shown_but_left_out_of_the_comparisons(tmp_path
         _run(tmp_path, "ddpg", seed, d, 150.0 if seed < 2 else 900.0, steps=200_000 if seed == 2 else 1_000_000)
     runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
     assert [r["finished"] for r in runs["ddpg"]] == [True, True, False]
-    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100))
+    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100, ["deck1"]))
     row = text.split("| deck1 | ddpg |")[1].splitlines()[0]
     # the figures are the finished seeds' (a run at 200,000 steps is not the recipe's budget), the other named
     assert " 2: 0, 1 (1,000,000); seed 2 still training (last evaluated at 200,000 of 1,000,000 steps), left " \
         "out | 20 min | 80.0 (80.0 to 80.0) | 80, 80 |" in row and "900" not in row
     for r in runs["ddpg"]:  # while no seed has finished, every seed is shown
         r["finished"] = False
-    row = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100)).split(
+    row = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100, ["deck1"])).split(
         "| deck1 | ddpg |")[1].splitlines()[0]
     assert "3: 0, 1, 2 (200,000/1,000,000; of 1,000,000, still training)" in row and "| 80, 80, 30 |" in row
     for r, done in zip(runs["ddpg"], (True, True, False), strict=True):
@@ -108,22 +109,31 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
     (stopped / "config.json").write_text(json.dumps({"scene": "square", "seed": 2, "total_steps": 1_000_000}))
     runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
     assert [r["seed"] for r in runs["mddpg"]] == [0, 1]
-    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
+    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])).split(
         "| square | mddpg |")[1].splitlines()[0]
     assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record in this checkout (not trained here, stopped before " \
         "its first evaluation, or unreadable), left out | " in row
-    lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)
+    lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])
     # the recipe's agents without any run, named with the command that trains them
     assert "- square: no run of `square-reward` (ddpg, dqn, a2c) with a held-out record of 100 episodes in this " \
         "checkout: `python benchmarks/learning.py --recipe square-reward --arms ddpg,dqn,a2c` trains them." in lines
     shutil.rmtree(stopped)
     (tmp_path / "square-reward-mddpg-seed1").rename(tmp_path / "elsewhere")  # seeds 1 and 2 never trained here
     runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
-    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100)).split(
+    row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])).split(
         "| square | mddpg |")[1].splitlines()[0]
     assert " 1: 0 (1,000,000); seeds 1, 2 with no held-out record in this checkout" in row
     assert "no held-out record" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
                                                                          paper=True))  # (no recipe seeds given)
+    targets = "\n".join(make_results.targets(_NoShipped(), {"square": runs}))
+    assert "MDDPG from the reward alone on square: 60.0 % (mean of the 1 finished seed(s); no target: the paper " \
+        "reports the decks only, the square is measured)." in targets
+    # a scene with a reward-alone recipe and no run at all is named with all of its agents
+    lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square", "deck2"])
+    assert "- deck2: no run of `deck2-reward` (mddpg, ddpg, dqn, a2c) with a held-out record of 100 episodes in " \
+        "this checkout: `python scripts/train_shipped.py --scenes deck2 --algos mddpg-reward,ddpg-reward," \
+        "dqn-reward,a2c-reward --redo --episodes-per-run 100` measures each seed of the shipped file (and the " \
+        "shipped agent again)." in lines
 
 
 def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, make_results):
