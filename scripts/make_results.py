@@ -416,7 +416,7 @@ def targets(res, reward: dict[str, dict[str, list[dict]]]) -> list[str]:  # noqa
         recs = reward.get(scene, {}).get("mddpg")
         paper = PAPER["success"].get(scene, {}).get("mddpg")
         against = (f"target {100 * goal:.0f} %, the paper {100 * paper:.0f} %" if goal is not None else
-                   "no target: the paper reports the decks only, the square is measured")
+                   "no target: the paper reports the decks only")
         if not recs:
             out.append(f"- MDDPG from the reward alone on {scene}: no run yet ({against}).")
             continue

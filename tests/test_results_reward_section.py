@@ -127,7 +127,7 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
                                                                          paper=True))  # (no recipe seeds given)
     targets = "\n".join(make_results.targets(_NoShipped(), {"square": runs}))
     assert "MDDPG from the reward alone on square: 60.0 % (mean of the 1 finished seed(s); no target: the paper " \
-        "reports the decks only, the square is measured)." in targets
+        "reports the decks only)." in targets
     # a scene with a reward-alone recipe and no run at all is named with all of its agents
     lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square", "deck2"])
     assert "- deck2: no run of `deck2-reward` (mddpg, ddpg, dqn, a2c) with a held-out record of 100 episodes in " \
