@@ -227,3 +227,9 @@ def test_the_report_states_the_direction_of_each_mddpg_ddpg_difference():
     assert f"- deck1: MDDPG drives a path 5.0 m shorter than DDPG {apart}; {paper}" in lines
     assert f"- deck1: MDDPG turns 40.0 deg more than DDPG {apart}; the paper's: 0.16 deg less." in lines
     assert not prediction_differences(EvalResults(EvalConfig(**SMALL), [], [summary("mddpg", 1.0, 1.0)]), ["deck1"])
+    tie = EvalResults(EvalConfig(**SMALL), [], [summary("mddpg", 120.04, 60.0), summary("ddpg", 120.0, 60.0)])
+    lines = prediction_differences(tie, ["deck1"])
+    assert "- deck1: MDDPG drives a path as long as DDPG's (within 0.05 m; the intervals overlap); the paper's: " \
+        "0.02 Unity units shorter." in lines
+    assert "- deck1: MDDPG turns as much as DDPG (within 0.05 deg; the intervals overlap); the paper's: 0.16 deg " \
+        "less." in lines

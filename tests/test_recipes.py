@@ -55,7 +55,7 @@ def test_every_shipped_scene_has_a_recipe_and_a_reward_alone_recipe_and_the_deck
             config = load_recipe(recipe_name(agent, scene)).config(training_algo(agent), 2)
             assert config.regime == "reward" and config.algo == agent.split("-")[0]
             assert not (config.demo_episodes or config.bc_weight or config.expert_relabel or config.polish_epochs)
-        # DQN and A2C observe what MDDPG and DDPG observe (the same observation features)
+        # DQN and A2C get the scene fields of MDDPG and DDPG (the same observation, less the forecast MDDPG adds)
         reward = load_recipe(f"{scene}-reward")
         for algo in ("dqn", "a2c"):
             assert reward.baseline_kwargs(algo).get("scene_overrides", {}) == \

@@ -63,8 +63,8 @@ def test_reward_runs_give_means_intervals_and_the_paired_ablation(tmp_path, make
     assert "MDDPG from the reward alone on deck2: no run yet" in targets
     assert "MDDPG from the reward alone on square: no run yet (no target: the paper reports the decks only" in targets
     runs["mddpg"][2]["finished"] = False  # a seed still training: no verdict yet, and the mean of the others
-    assert "on deck1: 91.0 % (mean of the 2 finished seed(s)) against the target of 90 % and the paper's 98 %: not " \
-        "decided: 3 seed(s), 2 finished" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
+    assert "on deck1: 91.0 % (mean of the 2 finished seed(s) of 3) against the target of 90 % and the paper's " \
+        "98 %: not decided: 3 seed(s), 2 finished" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
     for r in runs["mddpg"]:
         r["finished"] = False
     assert "on deck1: no seed finished yet" in "\n".join(make_results.targets(_NoShipped(), {"deck1": runs}))
@@ -126,8 +126,16 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
     assert "no held-out record" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
                                                                          paper=True))  # (no recipe seeds given)
     targets = "\n".join(make_results.targets(_NoShipped(), {"square": runs}))
-    assert "MDDPG from the reward alone on square: 60.0 % (mean of the 1 finished seed(s); no target: the paper " \
-        "reports the decks only)." in targets
+    assert "MDDPG from the reward alone on square: 60.0 % (mean of the 1 finished seed(s) of 1; no target: the " \
+        "paper reports the decks only)." in targets
+    assert "on deck1" not in "\n".join(make_results.targets(_NoShipped(), {"square": runs}, ("square",)))
+    runs["mddpg"] += [{**runs["mddpg"][0], "seed": k, "finished": False} for k in (1, 2)]
+    assert "on square: 60.0 % (mean of the 1 finished seed(s) of 3; no target" in "\n".join(
+        make_results.targets(_NoShipped(), {"square": runs}))
+    for r in runs["mddpg"]:
+        r["finished"] = False
+    assert "on square: no seed finished yet (no target: the paper reports the decks only): 3 seed(s), 0 finished." \
+        in "\n".join(make_results.targets(_NoShipped(), {"square": runs}))
     # a scene with a reward-alone recipe and no run at all is named with all of its agents
     lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square", "deck2"])
     assert "- deck2: no run of `deck2-reward` (mddpg, ddpg, dqn, a2c) with a held-out record of 100 episodes in " \
@@ -160,9 +168,15 @@ def test_means_equal_at_the_printed_precision_are_called_equal(tmp_path, make_re
     text = "\n".join(make_results.ablation_lines("deck1", runs))
     assert "MDDPG turns as much as DDPG (150 against 150 deg" in text
     assert "MDDPG's paths are as long as DDPG's (1.048 against 1.048 of the shortest" in text
+    # the paper's direction beside ours (deck 1: MDDPG 139.80 against DDPG 139.96 deg, 328.95 against 328.97)
+    assert "; the paper's MDDPG less (139.80 against 139.96 deg)." in text
+    assert "; the paper's MDDPG shorter (328.95 against 328.97 Unity units)." in text
     runs["ddpg"][0]["path_ratio"] = 1.0464
     assert "MDDPG's paths are longer than DDPG's (1.048 against 1.046" in "\n".join(
         make_results.ablation_lines("deck1", runs))
+    runs["mddpg"][0]["turning_deg"] = float("nan")  # (a seed without a successful episode has no turning)
+    lines = make_results.ablation_lines("deck1", runs)
+    assert not any("turns" in x for x in lines) and any("paths are longer" in x for x in lines)
 
 
 def test_one_seed_gives_its_episodes_interval_but_no_verdict(tmp_path, make_results):

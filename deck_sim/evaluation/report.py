@@ -243,8 +243,8 @@ def team_table(res: EvalResults, scenes: list[str], agents: list[str]) -> list[s
 
 def prediction_differences(res: EvalResults, scenes: list[str]) -> list[str]:
     """Lines stating, per scene where both were evaluated, whether MDDPG's path is longer or shorter than DDPG's
-    and whether it turns more or less, ours and the paper's (Tables 2-3), with whether our 95 % intervals
-    overlap."""
+    and whether it turns more or less (or as much, within the printed 0.1 m or deg), ours and the paper's
+    (Tables 2-3), with whether our 95 % intervals overlap."""
     lines: list[str] = []
     for s in scenes:
         m, d = _find(res, s, "mddpg"), _find(res, s, "ddpg")
@@ -259,8 +259,12 @@ def prediction_differences(res: EvalResults, scenes: list[str]) -> list[str]:
                 continue
             (m_lo, m_hi), (d_lo, d_hi) = m[f"{key}_ci"], d[f"{key}_ci"]
             overlap = "the intervals overlap" if m_lo <= d_hi and d_lo <= m_hi else "the intervals are apart"
-            verb = "turns" if key == "turning_deg" else "drives a path"
-            text = f"- {s}: MDDPG {verb} {abs(ours):.1f} {unit} {more if ours > 0 else less} than DDPG ({overlap})"
+            if f"{abs(ours):.1f}" == "0.0":  # (equal at the printed precision: "0.0 m shorter" would say nothing)
+                same = "turns as much as DDPG" if key == "turning_deg" else "drives a path as long as DDPG's"
+                text = f"- {s}: MDDPG {same} (within 0.05 {unit}; {overlap})"
+            else:
+                verb = "turns" if key == "turning_deg" else "drives a path"
+                text = f"- {s}: MDDPG {verb} {abs(ours):.1f} {unit} {more if ours > 0 else less} than DDPG ({overlap})"
             paper = PAPER[key].get(s, {})
             if "mddpg" in paper and "ddpg" in paper:
                 theirs = paper["mddpg"] - paper["ddpg"]
