@@ -325,3 +325,41 @@ def test_the_layer_norm_critic_normalises_each_hidden_layer_by_hand():
     h = np.maximum((z - z.mean()) / np.sqrt(z.var() + 1e-5), 0.0)
     q = agent.critic.first(torch.tensor([[1.0, -2.0]]), torch.tensor([[0.25]]))
     np.testing.assert_allclose(q.detach().numpy(), [h @ [1.0, 2.0, 3.0] + 0.5], rtol=1e-5)
+
+
+def _saturated_agent(weight: float) -> DDPGAgent:
+    """obs 2, action 1; the actor's pre-tanh action is 30 on every state (tanh(30) == 1.0 in float32), and the
+    critic rates a smaller action higher (Q falls with a through every ReLU unit it reads); a large actor step
+    size, so that 50 Adam steps move it visibly."""
+    torch.manual_seed(0)
+    cfg = TrainConfig(hidden=(8,), batch_size=4, policy_delay=1, actor_lr=0.05, actor_preact_weight=weight)
+    agent = DDPGAgent(2, 1, cfg)
+    for net in (agent.actor, agent.actor_target):
+        _set_linear(net.net[2], [[0.1] * 8], [30.0])
+    with torch.no_grad():
+        for head in agent.critic.heads:
+            head[0].weight[:, 2] = -head[0].weight[:, 2].abs()
+            head[2].weight.copy_(head[2].weight.abs())
+    return agent
+
+
+def test_the_preactivation_penalty_pulls_a_saturated_actor_back_where_the_critic_reaches_it():
+    from training.config import ConfigError, arm_config
+
+    cfg = arm_config("reward-mddpg-with-preact", "deck1", steps=10_000, seed=0)
+    assert cfg.actor_preact_weight == 1e-3 and TrainConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ConfigError, match="actor_preact_weight: must be a finite number >= 0, got -0.1"):
+        make_config("reward", actor_preact_weight=-0.1)
+    obs = torch.tensor([[1.0, 0.0], [0.5, 2.0], [0.0, 1.0], [2.0, 2.0]])
+    batch = _batch(obs.tolist(), [[0.0]] * 4, [0.0] * 4, obs.tolist(), [1.0] * 4)
+    pre = {}
+    for weight in (0.0, 1e-3):
+        agent = _saturated_agent(weight)
+        assert torch.allclose(torch.tanh(agent.actor.preactivation(obs)), agent.actor(obs))
+        before = copy.deepcopy(agent.actor.state_dict())
+        for _ in range(50):
+            agent.update(batch)
+        pre[weight] = agent.actor.preactivation(obs).detach()
+        changed = any(not torch.equal(before[k], v) for k, v in agent.actor.state_dict().items())
+        assert changed == (weight > 0.0)  # without the penalty tanh's gradient is 0: the actor cannot move
+    assert torch.all(pre[0.0] > 29.0) and torch.all(pre[1e-3] < pre[0.0] - 1.0)

@@ -269,3 +269,11 @@ def test_a_set_actor_on_a_deck_without_movers_reads_the_statics_alone(tmp_path):
     assert policy.sets == {"statics": ["static_obstacles"]} and "movers.w0" not in policy.arrays
     obs = trainer.buffer.obs[: trainer.buffer.size]
     np.testing.assert_allclose(policy.act_flat(obs), trainer.agent.act(obs), atol=1e-5)
+
+
+def test_the_set_actors_preactivation_is_its_action_before_tanh(shapes):
+    agent = _agent(shapes)
+    x = agent.norm(torch.as_tensor(np.random.default_rng(2).normal(3.0, 20.0, size=(20, agent.obs_dim)),
+                                   dtype=torch.float32))
+    with torch.no_grad():
+        torch.testing.assert_close(torch.tanh(agent.actor.preactivation(x)), agent.actor(x))

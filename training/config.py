@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -230,6 +231,12 @@ class TrainConfig:
     """A ``LayerNorm`` after each hidden layer of the critic (the actor unchanged): it bounds the features the Q
     values are read from, which keeps the critic's extrapolation to unseen actions and its bootstrapped targets in
     check (Ball et al. 2023, RLPD; Hiraoka et al. 2022, DroQ)."""
+    actor_preact_weight: float = 0.0
+    """Weight of a penalty on the actor's action before its tanh, ``u``: the actor's loss adds
+    ``actor_preact_weight * mean(u**2)`` over the batch and the action's components, as the original SAC
+    implementation regularises its policy's pre-tanh mean (weight 1e-3; Haarnoja et al. 2018). Without it the
+    actor can drive ``u`` far past the saturation of tanh (|u| of 20 and more), where the critic's gradient reaches
+    it multiplied by ``1 - tanh(u)**2``, practically 0, and that action no longer learns. 0: off."""
     target_noise: float = 0.0
     """TD3 target policy smoothing: std of the clipped Gaussian noise added to mu'(s') (0: off)."""
     target_noise_clip: float = 0.5
@@ -424,6 +431,8 @@ class TrainConfig:
             raise ConfigError(f"bc_weight_final: must be >= 0 or None, got {self.bc_weight_final!r}")
         if self.bc_weight_final is not None and self.bc_weight <= 0.0:
             raise ConfigError("bc_weight_final: the cloning term is off (bc_weight 0); a schedule needs bc_weight > 0")
+        if not (math.isfinite(self.actor_preact_weight) and self.actor_preact_weight >= 0.0):
+            raise ConfigError(f"actor_preact_weight: must be a finite number >= 0, got {self.actor_preact_weight!r}")
         if self.twin_min_weight != 1.0 and not self.twin_critics:
             raise ConfigError("twin_min_weight: weighs the twin critics, which are off (twin_critics false)")
         for name in ("gamma", "tau", "demo_fraction", "noise_decay", "bc_decay", "twin_min_weight"):
@@ -618,6 +627,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
     "layernorm": {"critic_layer_norm": True},
+    "preact": {"actor_preact_weight": 1e-3},
     "utd": {"updates_per_step": 1.0},
     "wait": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "stop"},
     "ez": {"hold_prob": 0.02, "hold_steps": 10, "hold_action": "random"},
@@ -648,7 +658,8 @@ updates, the planner labels them and the fit is made again, ``dagger_steps``; ``
 the sampled transitions, ``her_ratio``; ``nstep``: 3-step returns, ``n_step``; ``per``: prioritised replay with
 alpha 0.6 and beta from 0.4, ``per_alpha``; ``meanq``: the TD target on the mean of the twin critics rather
 than their minimum, ``twin_min_weight = 0.5``; ``layernorm``: a ``LayerNorm`` after each hidden layer of the
-critic, ``critic_layer_norm``; ``utd``: one update per environment step (the reward preset makes one per 4),
+critic, ``critic_layer_norm``; ``preact``: a penalty of 1e-3 on the actor's squared pre-tanh action,
+``actor_preact_weight``; ``utd``: one update per environment step (the reward preset makes one per 4),
 ``updates_per_step = 1``; ``lookahead``: the reward's repulsion term reads each mover's
 closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's

@@ -197,7 +197,12 @@ class DDPGAgent:
 
     def _actor_step(self, obs: torch.Tensor, batch: Batch, clone_only: bool) -> dict[str, float]:
         cfg = self.config
-        action = self.actor(obs)
+        preact = cfg.actor_preact_weight > 0.0 and not clone_only
+        if preact:
+            pre = self.actor.preactivation(obs)
+            action = torch.tanh(pre)
+        else:
+            action = self.actor(obs)
         q_pi = self.critic.first(obs, action)
         actor_loss = -q_pi.mean()
         bc_loss = torch.zeros(())
@@ -221,6 +226,8 @@ class DDPGAgent:
                 bc_loss = (err * mask).sum() / n_labelled
             share = float(mask.sum()) / n_labelled
         loss = bc_loss if clone_only else actor_loss + self.bc_weight * bc_loss
+        if preact:  # keeps tanh out of saturation, where dQ/da * (1 - a^2) vanishes and the actor stops learning
+            loss = loss + cfg.actor_preact_weight * pre.square().mean()
         self.actor_opt.zero_grad(set_to_none=True)
         loss.backward()
         if cfg.grad_clip > 0:

@@ -29,8 +29,18 @@ class MLP(nn.Sequential):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not torch.is_autocast_enabled("cpu"):
             return super().forward(x)
+        x = self.linear_out(x)
+        for layer in list(self)[self._last_linear + 1:]:
+            x = layer(x)
+        return x
+
+    def linear_out(self, x: torch.Tensor) -> torch.Tensor:
+        """The last linear layer's output, before the output activation (an actor's pre-tanh action)."""
+        autocast = torch.is_autocast_enabled("cpu")
         for i, layer in enumerate(self):
-            if i == self._last_linear:
+            if i > self._last_linear:
+                break
+            if i == self._last_linear and autocast:
                 with torch.autocast("cpu", enabled=False):
                     x = layer(x.float())
             else:
@@ -146,6 +156,10 @@ class Actor(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs)
 
+    def preactivation(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action before its tanh: ``forward(obs) == tanh(preactivation(obs))``."""
+        return self.net.linear_out(obs)
+
 
 class SetActor(nn.Module):
     """mu(s) with one encoder per set of obstacles (Deep Sets; Zaheer et al., 2017), as in crowd navigation's
@@ -185,6 +199,13 @@ class SetActor(nn.Module):
         self.head = mlp([c + len(elements) * int(set_hidden[-1]), *hidden, act_dim], nn.Tanh())
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(self._head_input(obs))
+
+    def preactivation(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action before its tanh: ``forward(obs) == tanh(preactivation(obs))``."""
+        return self.head.linear_out(self._head_input(obs))
+
+    def _head_input(self, obs: torch.Tensor) -> torch.Tensor:
         context = obs[..., self.context]
         parts = [context]
         for name in self.names:
@@ -192,7 +213,7 @@ class SetActor(nn.Module):
             ctx = context.unsqueeze(-2).expand(*elements.shape[:-1], context.shape[-1])
             encoded = self.encoders[name](torch.cat([elements, ctx], dim=-1))
             parts.append(pool(encoded))
-        return self.head(torch.cat(parts, dim=-1))
+        return torch.cat(parts, dim=-1)
 
 
 def pool(encoded: torch.Tensor) -> torch.Tensor:
