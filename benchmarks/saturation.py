@@ -11,9 +11,12 @@ states of one of two kinds:
 - a run folder (``checkpoint.pt``, ``training.checkpoints``): up to ``--samples`` of the run's own transitions in
   its replay buffer (seeded), and with the run's critic, the medians of ``|dQ/da|`` (first critic head, at the
   actor's action) and of ``|dQ/du| = |dQ/da| (1 - a**2)``, the gradient the actor's last layer receives;
-- an actor file (``actor.npz``, ``actor_best.npz``, a shipped ensemble: each member apart): the states of
-  ``--episodes`` episodes of the actor's own scene (observation fields as it was trained with), stream ``--seed``,
-  driven by that actor, up to ``--max-steps`` steps each. No critic travels with an actor file.
+- an MLP actor file (``actor.npz``, ``actor_best.npz``, a shipped ensemble: each member apart; not a set actor's
+  or a stable-baselines3 agent's): the states of ``--episodes`` episodes of the actor's own single-aircraft scene
+  (observation fields as it was trained with), stream ``--seed``, driven by that actor, up to ``--max-steps``
+  steps each. No critic travels with an actor file.
+
+A checkpoint taken after the final cloning fit is refused: its actor is the fit's, not the one its critic trained.
 
     python benchmarks/saturation.py runs/learning/square-reward-mddpg-seed0 deck_sim/trained/deck1_mddpg-reward.npz
 """
@@ -66,14 +69,19 @@ def run_saturation(run: Path, samples: int, seed: int = 0) -> dict[str, Any]:
         raise CheckpointError(f"{run}: no {CHECKPOINT} (the folder of a DDPG or MDDPG training run holds one)")
     state = load_run_checkpoint(run)
     cfg = checkpoint_config(state, run / CHECKPOINT)
+    if state.get("polished", False):
+        raise CheckpointError(f"{run}: the checkpoint holds the final cloning fit's actor, not the one its critic "
+                              "trained (read a checkpoint of the run before its fit)")
     buf = state["buffer"]
     start, size = int(buf["n_demo"]), int(buf["size"])  # (demonstrations: not the run's own states)
     if size <= start:
         raise CheckpointError(f"{run}: the replay buffer holds none of the run's own transitions")
     pick = np.random.default_rng(seed).choice(np.arange(start, size), size=min(samples, size - start), replace=False)
     obs_raw = buf["obs"][torch.from_numpy(np.sort(pick))]
-    layout = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)  # (the set actor reads it)
-    agent = DDPGAgent(obs_raw.shape[1], buf["action"].shape[1], cfg, shapes=layout.shapes)
+    shapes = None
+    if cfg.actor_arch == "sets":  # the set actor reads the observation's layout
+        shapes = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides).shapes
+    agent = DDPGAgent(obs_raw.shape[1], buf["action"].shape[1], cfg, shapes=shapes)
     agent.load_state_dict(state["agent"])
     with torch.no_grad():
         obs = agent.norm(obs_raw.float())
@@ -87,10 +95,15 @@ def run_saturation(run: Path, samples: int, seed: int = 0) -> dict[str, Any]:
     }
 
 
-def preactivation(policy: LearnedPolicy, x: np.ndarray) -> np.ndarray:
-    """An MLP actor file's action before its tanh for flat observations ``x`` (n, dim)."""
+def check_mlp(policy: LearnedPolicy) -> None:
+    """``PolicyFileError`` unless ``policy`` is an MLP actor with a tanh head (``preactivation`` reads it)."""
     if policy.sets or policy.head != "tanh":
         raise PolicyFileError(f"{policy.source}: not an MLP actor with a tanh head (a set actor or a baseline's)")
+
+
+def preactivation(policy: LearnedPolicy, x: np.ndarray) -> np.ndarray:
+    """An MLP actor file's action before its tanh for flat observations ``x`` (n, dim)."""
+    check_mlp(policy)
     if policy.norm_enabled:
         x = np.clip((x - policy.norm_mean) / policy.norm_std, -policy.norm_clip, policy.norm_clip)
     for i, (w, b) in enumerate(zip(policy.weights, policy.biases, strict=True)):
@@ -103,18 +116,30 @@ def preactivation(policy: LearnedPolicy, x: np.ndarray) -> np.ndarray:
 def actor_saturation(path: Path, episodes: int, seed: int, max_steps: int) -> list[dict[str, Any]]:
     """The module docstring's figures for each member of one actor file, on the states it drives itself into."""
     loaded = load_actor(path)
+    members = getattr(loaded, "members", [loaded])
+    for policy in members:
+        check_mlp(policy)
     out = []
-    for k, policy in enumerate(getattr(loaded, "members", [loaded])):
-        env = deck_sim.load(policy.meta["scene"], seed=seed, **policy.scene_overrides)
+    for k, policy in enumerate(members):
+        scene = policy.meta.get("scene")
+        if not isinstance(scene, str):
+            raise PolicyFileError(f"{path}: the actor records no scene to play")
+        env = deck_sim.load(scene, seed=seed, **policy.scene_overrides)
+        if env.task.spec.multi_agent:
+            env.close()
+            raise PolicyFileError(f"{path}: scene {scene!r} has several aircraft; this reads "
+                                  "single-aircraft actors")
         rows = []
-        for _ in range(episodes):
-            ts, n = env.reset(), 0
-            policy.reset()
-            while not ts.last() and n < max_steps:
-                u = preactivation(policy, policy.flatten(ts.observation)[None])[0]
-                rows.append(u)
-                ts, n = env.step(np.tanh(u)), n + 1
-        env.close()
+        try:
+            for _ in range(episodes):
+                ts, n = env.reset(), 0
+                policy.reset()
+                while not ts.last() and n < max_steps:
+                    u = preactivation(policy, policy.flatten(ts.observation)[None])[0]
+                    rows.append(u)
+                    ts, n = env.step(np.tanh(u)), n + 1
+        finally:
+            env.close()
         out.append({"member": k, "states": len(rows), **shares(np.array(rows))})
     return out
 
@@ -134,6 +159,8 @@ def main() -> None:
     for name in ("samples", "episodes", "max_steps"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')}: at least 1")
+    if args.seed < 0:
+        parser.error("--seed: at least 0")
     print(machine(torch=torch.__version__))
     print(f"u: the action before tanh, per component (a0 / a1); |u| > {SATURATED:g}: 1 - tanh^2 < 0.01; "
           f"|u| > {DEAD:g}: < 1e-8")
@@ -148,14 +175,14 @@ def main() -> None:
             if path.is_dir():
                 r = run_saturation(path, args.samples)
                 print(f"| {path.name} | {r['steps']} | {r['states']} | {_cells(r['median'], '.2f')} | "
-                      f"{_cells(r['over3'], '.0%')} | {_cells(r['over10'], '.0%')} | {_cells(r['dq_da'], '.3g')} | "
+                      f"{_cells(r['over3'], '.1%')} | {_cells(r['over10'], '.1%')} | {_cells(r['dq_da'], '.3g')} | "
                       f"{_cells(r['dq_du'], '.3g')} |", flush=True)
             else:
                 for r in actor_saturation(path, args.episodes, args.seed, args.max_steps):
                     print(f"| {path.name} member {r['member']} | - | {r['states']} | {_cells(r['median'], '.2f')} | "
-                          f"{_cells(r['over3'], '.0%')} | {_cells(r['over10'], '.0%')} | - | - |", flush=True)
-        except (CheckpointError, PolicyFileError, OSError) as err:
-            print(err, file=sys.stderr)
+                          f"{_cells(r['over3'], '.1%')} | {_cells(r['over10'], '.1%')} | - | - |", flush=True)
+        except (CheckpointError, PolicyFileError, OSError, ValueError, KeyError) as err:
+            print(f"{path}: {err}" if isinstance(err, KeyError) else err, file=sys.stderr)
             failed = True
     if failed:
         raise SystemExit(1)

@@ -343,7 +343,7 @@ def _saturated_agent(weight: float) -> DDPGAgent:
     return agent
 
 
-def test_the_preactivation_penalty_pulls_a_saturated_actor_back_where_the_critic_reaches_it():
+def test_the_preactivation_penalty_moves_a_saturated_actor_that_the_critic_cannot_move():
     from training.config import ConfigError, arm_config
 
     cfg = arm_config("reward-mddpg-with-preact", "deck1", steps=10_000, seed=0)
@@ -363,3 +363,26 @@ def test_the_preactivation_penalty_pulls_a_saturated_actor_back_where_the_critic
         changed = any(not torch.equal(before[k], v) for k, v in agent.actor.state_dict().items())
         assert changed == (weight > 0.0)  # without the penalty tanh's gradient is 0: the actor cannot move
     assert torch.all(pre[0.0] > 29.0) and torch.all(pre[1e-3] < pre[0.0] - 1.0)
+    # a cloning-only update (pretraining) leaves the penalty out: the cloning loss alone, 0 through tanh(30)
+    agent = _saturated_agent(1e-3)
+    before = copy.deepcopy(agent.actor.state_dict())
+    labelled = batch._replace(expert_action=torch.full((4, 1), -0.5), labelled=torch.ones(4))
+    for _ in range(5):
+        agent.update(labelled, clone_only=True)
+    assert all(torch.equal(before[k], v) for k, v in agent.actor.state_dict().items())
+
+
+@pytest.mark.parametrize("arch", ["mlp", "sets"])
+def test_the_actors_preactivation_is_its_action_before_tanh_in_float32_and_under_bfloat16(arch):
+    torch.manual_seed(3)
+    shapes = {"target": (2,), "dynamic_obstacles": (3, 2), "position": (2,)}
+    agent = DDPGAgent(10, 2, TrainConfig(hidden=(16, 16), set_hidden=(8,), actor_arch=arch), shapes=shapes)
+    x = torch.randn(32, 10)
+    with torch.no_grad():
+        u = agent.actor.preactivation(x)
+        assert u.abs().max() < 3.0  # away from saturation, where tanh tells values apart
+        torch.testing.assert_close(torch.tanh(u), agent.actor(x))
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            u16, a16 = agent.actor.preactivation(x), agent.actor(x)
+        assert u16.dtype == a16.dtype == torch.float32
+        torch.testing.assert_close(torch.tanh(u16), a16)

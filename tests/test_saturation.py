@@ -43,19 +43,36 @@ def test_a_runs_checkpoint_and_its_actor_file_are_read_and_a_missing_one_is_name
     (tmp_path / "empty").mkdir()
     done = subprocess.run(
         [sys.executable, "benchmarks/saturation.py", str(run), str(run / "actor.npz"), str(tmp_path / "empty"),
-         str(tmp_path / "missing.npz"), "--samples", "50", "--episodes", "1", "--max-steps", "4"],
+         str(tmp_path / "missing.npz"), "deck_sim/trained/deck1_mddpg.npz", "deck_sim/trained/deck1_dqn-reward.npz",
+         "--samples", "50", "--episodes", "1", "--max-steps", "4"],
         cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
         text=True, timeout=300,
     )
     assert done.returncode == 1
     assert f"{tmp_path / 'empty'}: no checkpoint.pt" in done.stderr
     assert f"{tmp_path / 'missing.npz'}: no such run folder or actor file" in done.stderr
+    # a set actor (the taught deck 1 MDDPG) and a stable-baselines3 agent: refused by name, the others still read
+    assert "deck1_mddpg.npz, member 0: not an MLP actor with a tanh head" in done.stderr
+    assert "deck1_dqn-reward.npz: not an MLP actor with a tanh head" in done.stderr
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.strip("|").split("|")]
             for line in done.stdout.splitlines() if line.startswith("| run") or line.startswith("| actor.npz")}
     ckpt, actor = rows["run"], rows["actor.npz member 0"]
     assert ckpt[1] == "300" and ckpt[2] == "50" and actor[2] == "4"
     for cells in (ckpt, actor):
         assert len(cells) == 8
-        assert all(0 <= int(v.rstrip("%")) <= 100 for col in (4, 5) for v in cells[col].split(" / "))
+        assert all(0 <= float(v.rstrip("%")) <= 100 for col in (4, 5) for v in cells[col].split(" / "))
     assert all(float(v) >= 0.0 for col in (6, 7) for v in ckpt[col].split(" / "))
     assert actor[6] == actor[7] == "-"
+
+
+def test_the_gradient_reaching_u_is_the_critics_gradient_times_tanhs_derivative(tmp_path):
+    cfg = short_config(algo="ddpg", total_steps=200, num_envs=2, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
+                       expert_relabel=False)
+    run = tmp_path / "run"
+    trainer = Trainer(cfg, run, progress=False)
+    trainer.train()
+    trainer.close()
+    r = saturation.run_saturation(run, samples=60)
+    assert r["steps"] == 200 and r["states"] == 60
+    assert np.all(r["dq_du"] <= r["dq_da"] + 1e-12) and np.all(r["dq_da"] > 0.0)
+    assert np.all((0.0 <= r["over10"]) & (r["over10"] <= r["over3"]) & (r["over3"] <= 1.0))

@@ -233,8 +233,9 @@ class TrainConfig:
     check (Ball et al. 2023, RLPD; Hiraoka et al. 2022, DroQ)."""
     actor_preact_weight: float = 0.0
     """Weight of a penalty on the actor's action before its tanh, ``u``: the actor's loss adds
-    ``actor_preact_weight * mean(u**2)`` over the batch and the action's components, as the original SAC
-    implementation regularises its policy's pre-tanh mean (weight 1e-3; Haarnoja et al. 2018). Without it the
+    ``actor_preact_weight * mean(u**2)`` over the batch and the action's components, in the manner of the original
+    SAC implementation's penalty on its Gaussian policy's pre-tanh mean (1e-3 times half its mean square; Haarnoja
+    et al. 2018). Without it the
     actor can drive ``u`` far past the saturation of tanh (|u| of 20 and more), where the critic's gradient reaches
     it multiplied by ``1 - tanh(u)**2``, practically 0, and that action no longer learns. 0: off."""
     target_noise: float = 0.0
