@@ -22,6 +22,16 @@ saturation = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(saturation)
 
 
+def _reward_run(tmp_path: Path, algo: str, steps: int) -> Path:
+    """A seconds-long run without a teacher in ``tmp_path/run``, its checkpoint and actor written."""
+    cfg = short_config(algo=algo, total_steps=steps, num_envs=2, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
+                       expert_relabel=False)
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    trainer.train()
+    trainer.close()
+    return tmp_path / "run"
+
+
 def test_the_shares_count_each_component_past_three_and_ten():
     u = np.array([[0.5, -12.0], [-4.0, 2.0], [20.0, -1.0], [1.0, 3.5]])
     s = saturation.shares(u)
@@ -31,12 +41,7 @@ def test_the_shares_count_each_component_past_three_and_ten():
 
 
 def test_a_runs_checkpoint_and_its_actor_file_are_read_and_a_missing_one_is_named(tmp_path):
-    cfg = short_config(algo="mddpg", total_steps=300, num_envs=2, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
-                       expert_relabel=False)
-    run = tmp_path / "run"
-    trainer = Trainer(cfg, run, progress=False)
-    trainer.train()
-    trainer.close()
+    run = _reward_run(tmp_path, "mddpg", 300)
     policy = load_actor(run / "actor.npz")
     x = np.random.default_rng(0).normal(0.0, 30.0, size=(20, len(policy.norm_mean)))
     np.testing.assert_allclose(np.tanh(saturation.preactivation(policy, x)), policy.act_flat(x), atol=1e-12)
@@ -66,12 +71,7 @@ def test_a_runs_checkpoint_and_its_actor_file_are_read_and_a_missing_one_is_name
 
 
 def test_the_gradient_reaching_u_is_the_critics_gradient_times_tanhs_derivative(tmp_path):
-    cfg = short_config(algo="ddpg", total_steps=200, num_envs=2, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
-                       expert_relabel=False)
-    run = tmp_path / "run"
-    trainer = Trainer(cfg, run, progress=False)
-    trainer.train()
-    trainer.close()
+    run = _reward_run(tmp_path, "ddpg", 200)
     r = saturation.run_saturation(run, samples=60)
     assert r["steps"] == 200 and r["states"] == 60
     assert np.all(r["dq_du"] <= r["dq_da"] + 1e-12) and np.all(r["dq_da"] > 0.0)
