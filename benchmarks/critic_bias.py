@@ -37,15 +37,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import machine  # noqa: E402
 
-from training.checkpoints import (  # noqa: E402
-    CHECKPOINT,
-    PREVIOUS,
-    CheckpointError,
-    checkpoint_config,
-    load_run_checkpoint,
-)
-from training.ddpg import DDPGAgent  # noqa: E402
-from training.envs import scene_layout  # noqa: E402
+from training.checkpoints import CheckpointError, load_run_agent  # noqa: E402
 
 
 def monte_carlo_returns(obs: np.ndarray, next_obs: np.ndarray, reward: np.ndarray, terminated: np.ndarray,
@@ -82,10 +74,7 @@ def monte_carlo_returns(obs: np.ndarray, next_obs: np.ndarray, reward: np.ndarra
 
 def critic_bias(run: Path, samples: int, seed: int = 0) -> dict[str, float]:
     """The figures of the module docstring for one run folder."""
-    if not (run / CHECKPOINT).is_file() and not (run / PREVIOUS).is_file():
-        raise CheckpointError(f"{run}: no {CHECKPOINT} (the folder of a DDPG or MDDPG training run holds one)")
-    state = load_run_checkpoint(run)
-    cfg = checkpoint_config(state, run / CHECKPOINT)
+    state, cfg, agent = load_run_agent(run)
     buf = state["buffer"]
     start = int(buf["n_demo"])  # (demonstrations: not the run's own actions)
     arrays = {k: buf[k][start:].numpy() for k in ("obs", "next_obs", "reward", "terminated", "action")}
@@ -95,9 +84,6 @@ def critic_bias(run: Path, samples: int, seed: int = 0) -> dict[str, float]:
     if len(known) == 0:
         raise CheckpointError(f"{run}: no episode ends within the replay buffer")
     pick = np.random.default_rng(seed).choice(known, size=min(samples, len(known)), replace=False)
-    layout = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)  # (the set actor reads it)
-    agent = DDPGAgent(arrays["obs"].shape[1], arrays["action"].shape[1], cfg, shapes=layout.shapes)
-    agent.load_state_dict(state["agent"])
     t = lambda k: torch.from_numpy(arrays[k][pick])  # noqa: E731
     with torch.no_grad():
         obs, next_obs = agent.norm(t("obs")), agent.norm(t("next_obs"))

@@ -40,15 +40,7 @@ from common import machine  # noqa: E402
 import deck_sim  # noqa: E402
 from deck_sim.policies import PolicyFileError, load_actor  # noqa: E402
 from deck_sim.policies.actors import LearnedPolicy  # noqa: E402
-from training.checkpoints import (  # noqa: E402
-    CHECKPOINT,
-    PREVIOUS,
-    CheckpointError,
-    checkpoint_config,
-    load_run_checkpoint,
-)
-from training.ddpg import DDPGAgent  # noqa: E402
-from training.envs import scene_layout  # noqa: E402
+from training.checkpoints import CheckpointError, load_run_agent  # noqa: E402
 
 SATURATED = 3.0
 """|u| past which ``1 - tanh(u)**2`` < 0.01."""
@@ -65,10 +57,7 @@ def shares(u: np.ndarray) -> dict[str, np.ndarray]:
 
 def run_saturation(run: Path, samples: int, seed: int = 0) -> dict[str, Any]:
     """The module docstring's figures for one run folder: its buffer's states, its actor and first critic head."""
-    if not (run / CHECKPOINT).is_file() and not (run / PREVIOUS).is_file():
-        raise CheckpointError(f"{run}: no {CHECKPOINT} (the folder of a DDPG or MDDPG training run holds one)")
-    state = load_run_checkpoint(run)
-    cfg = checkpoint_config(state, run / CHECKPOINT)
+    state, _, agent = load_run_agent(run)
     if state.get("polished", False):
         raise CheckpointError(f"{run}: the checkpoint holds the final cloning fit's actor, not the one its critic "
                               "trained (read a checkpoint of the run before its fit)")
@@ -78,11 +67,6 @@ def run_saturation(run: Path, samples: int, seed: int = 0) -> dict[str, Any]:
         raise CheckpointError(f"{run}: the replay buffer holds none of the run's own transitions")
     pick = np.random.default_rng(seed).choice(np.arange(start, size), size=min(samples, size - start), replace=False)
     obs_raw = buf["obs"][torch.from_numpy(np.sort(pick))]
-    shapes = None
-    if cfg.actor_arch == "sets":  # the set actor reads the observation's layout
-        shapes = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides).shapes
-    agent = DDPGAgent(obs_raw.shape[1], buf["action"].shape[1], cfg, shapes=shapes)
-    agent.load_state_dict(state["agent"])
     with torch.no_grad():
         obs = agent.norm(obs_raw.float())
         u = agent.actor.preactivation(obs)

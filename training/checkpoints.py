@@ -37,6 +37,7 @@ import torch
 from training.config import ConfigError, TrainConfig, bc_weight_at
 
 if TYPE_CHECKING:
+    from training.ddpg import DDPGAgent
     from training.loop import Trainer
 
 log = logging.getLogger(__name__)
@@ -163,6 +164,30 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
             _warned.add(key)
             log.warning("%s: a checkpoint without a checksum, read unverified (the run's next one has it)", path)
     return state
+
+
+def load_run_agent(run_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], TrainConfig, DDPGAgent]:
+    """A DDPG or MDDPG run folder's checkpoint (``load_run_checkpoint``), its config and its agent as last saved
+    (networks, normaliser, optimisers; a fitted checkpoint's actor at the fit's widths), for tools that read a run
+    without resuming it. ``CheckpointError`` naming the folder when it holds no checkpoint."""
+    from training.ddpg import DDPGAgent  # (the trainer's modules import this one)
+    from training.envs import scene_layout
+
+    run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT).is_file() and not (run_dir / PREVIOUS).is_file():
+        raise CheckpointError(f"{run_dir}: no {CHECKPOINT} (the folder of a DDPG or MDDPG training run holds one)")
+    state = load_run_checkpoint(run_dir)
+    cfg = checkpoint_config(state, run_dir / CHECKPOINT)
+    buf = state["buffer"]
+    shapes = None
+    if cfg.actor_arch == "sets":  # the set actor reads the observation's layout
+        shapes = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides).shapes
+    agent = DDPGAgent(buf["obs"].shape[1], buf["action"].shape[1], cfg, shapes=shapes)
+    widths = tuple(comparable(state["config"]).get("polish_hidden") or ())
+    if state.get("polished", False) and widths:
+        agent.set_actor_widths(widths)
+    agent.load_state_dict(state["agent"])
+    return state, cfg, agent
 
 
 def load_run_checkpoint(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
@@ -319,7 +344,7 @@ def restore(trainer: Trainer, state: dict[str, Any]) -> None:
     CSV logs cut back to the checkpoint's step."""
     path = trainer.run_dir / CHECKPOINT
     try:
-        # a polished checkpoint holds the fit's actor, of the widths its own config gave the fit
+        # a polished checkpoint holds the fit's actor, of the widths its own config gave the fit (as load_run_agent)
         widths = tuple(comparable(state["config"]).get("polish_hidden") or ())
         if state.get("polished", False) and widths:
             trainer.agent.set_actor_widths(widths)
