@@ -8,7 +8,9 @@ then ``docs/results.md`` with: the command and commit it came from, the machine;
 run of the scenes' reward-alone recipes (``training/recipes/<scene>-reward.toml``, run folders in ``--runs`` or the
 logs shipped with a reward-regime actor) measured seed by seed on the same held-out episodes (``training.heldout``),
 as means over seeds with 95 % intervals over seeds and paired differences; MDDPG against DDPG in the regimes that
-also learn from a planner (``<scene>-planner`` and ``<scene>`` recipes) measured the same way; then how many
+also learn from a planner (``<scene>-planner`` and ``<scene>`` recipes) measured the same way (in both, a run trained
+with another configuration than its recipe gives now is named with the command that retrains it, and not counted);
+then how many
 training seeds and episodes stand behind each shipped policy's number (training figures from
 ``deck_sim/trained/results.json``), the tables, the targets checked against the numbers, learning curves from the
 training runs' ``eval.csv`` logs (the ``runs/learning`` folders ``scripts/train_shipped.py`` trains in, where
@@ -55,7 +57,7 @@ from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_d
 from deck_sim.policies.regimes import REGIMES, actor_regime, config_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
-from training.recipes import load_recipe, recipe_names  # noqa: E402
+from training.recipes import config_differences, load_recipe, recipe_names  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
@@ -177,44 +179,88 @@ def recipe_seeds(scene: str, regime: str) -> dict[str, tuple[int, ...]]:
     return {algo: recipe.seeds(algo) for algo in recipe.algos}
 
 
-def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
-                algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
-    """Every run of ``scene``'s recipe of ``regime`` (``regime_agents``; ``algos`` of it, default all), each
-    seed's actor on ``episodes`` held-out episodes (``training.heldout``; cached in the run folder
-    ``<runs_dir>/<recipe>-<algo>-seed<k>``, else read from the logs ``scripts/train_shipped.py`` ships beside the
-    regime's actor). ``{algo: [record per seed]}``, each record with ``seed``, ``steps`` (trained so far),
-    ``finished`` and ``wall_s`` (training) added; empty if the scene has no such recipe or no run."""
-    from training.heldout import HeldOutError, held_out, shipped_held_out
-
+def _seed_folders(scene: str, regime: str, runs_dir: Path, algos: tuple[str, ...] | None = None,
+                  ) -> list[tuple[str, int, list[Path]]]:
+    """For each algorithm (``algos`` of it, default all) and seed of ``scene``'s recipe of ``regime``, the folders
+    that may hold its run, in the order they are read: the run folder ``<runs_dir>/<recipe>-<algo>-seed<k>``, then
+    the logs shipped beside the regime's actor (``deck_sim.policies.shipped_logs``), where present."""
     if (found := regime_agents(scene, regime)) is None:
-        return {}
+        return []
     recipe, agents = load_recipe(found[0]), found[1]
-    out: dict[str, list[dict]] = {}
+    out = []
     for algo in recipe.algos:
         if algos is not None and algo not in algos:
             continue
         shipped = ({seed: folder for folder, seed in shipped_logs(agents[algo], scene) if seed is not None}
                    if algo in agents else {})
         for seed in recipe.seeds(algo):
-            run = runs_dir / f"{recipe.name}-{algo}-seed{seed}"
-            record = None
-            try:
-                record = held_out(run, episodes, workers, per_episode=True)
-            except HeldOutError:
-                run = shipped.get(seed)  # the logs shipped with the actor, if it was shipped
-                if run is not None:
-                    record = shipped_held_out(run, episodes)
-            if record is None or not (run / "eval.csv").exists():
+            folders = [runs_dir / f"{recipe.name}-{algo}-seed{seed}", shipped.get(seed)]
+            out.append((algo, seed, [f for f in folders if f is not None and (f / "config.json").exists()]))
+    return out
+
+
+def _off_recipe(folder: Path, recipe_name_: str, algo: str, seed: int) -> list[str]:
+    """The fields in which the run in ``folder`` was trained otherwise than the recipe gives ``algo`` and ``seed``
+    now (``training.recipes.config_differences``; the notes a run stores do not count); empty if it is the
+    recipe's run."""
+    return config_differences(folder, load_recipe(recipe_name_).run(algo, seed))
+
+
+def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
+                algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
+    """Every run of ``scene``'s recipe of ``regime`` (``regime_agents``; ``algos`` of it, default all) trained with
+    the configuration the recipe gives it now, each seed's actor on ``episodes`` held-out episodes
+    (``training.heldout``; cached in the run folder ``<runs_dir>/<recipe>-<algo>-seed<k>``, else read from the logs
+    ``scripts/train_shipped.py`` ships beside the regime's actor). A run trained with another configuration (the
+    recipe changed since) is not counted (``off_recipe_runs`` names it). ``{algo: [record per seed]}``, each
+    record with ``seed``, ``steps`` (trained so far), ``finished`` and ``wall_s`` (training) added; empty if the
+    scene has no such recipe or no run."""
+    from training.heldout import HeldOutError, held_out, shipped_held_out
+
+    out: dict[str, list[dict]] = {}
+    for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos):
+        record = run = None
+        for folder in folders:
+            if _off_recipe(folder, regime_recipe(scene, regime), algo, seed):
                 continue
-            with open(run / "eval.csv", newline="") as f:
-                rows = list(csv.DictReader(f))
-            config = json.loads((run / "config.json").read_text())
-            total = int(config.get("total_steps") or config.get("steps") or 0)
-            steps = int(float(rows[-1]["step"])) if rows else 0
-            out.setdefault(algo, []).append(
-                {**record, "seed": seed, "steps": steps, "finished": steps >= total,
-                 "wall_s": float(rows[-1]["wall_s"]) if rows else float("nan")}
-            )
+            if folder.parent == runs_dir:
+                try:
+                    record = held_out(folder, episodes, workers, per_episode=True)
+                except HeldOutError:
+                    continue
+            else:
+                record = shipped_held_out(folder, episodes)
+            if record is not None and (folder / "eval.csv").exists():
+                run = folder
+                break
+        if run is None:
+            continue
+        with open(run / "eval.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        config = json.loads((run / "config.json").read_text())
+        total = int(config.get("total_steps") or config.get("steps") or 0)
+        steps = int(float(rows[-1]["step"])) if rows else 0
+        out.setdefault(algo, []).append(
+            {**record, "seed": seed, "steps": steps, "finished": steps >= total,
+             "wall_s": float(rows[-1]["wall_s"]) if rows else float("nan")}
+        )
+    return out
+
+
+def off_recipe_runs(scene: str, regime: str, runs_dir: Path, counted: dict[str, list[dict]],
+                    algos: tuple[str, ...] | None = None) -> dict[str, list[tuple[int, Path, list[str]]]]:
+    """The runs of ``scene``'s recipe of ``regime`` that ``regime_runs`` leaves out because they were trained with
+    another configuration than the recipe gives now: for each seed not in ``counted`` (``regime_runs``'s records),
+    its first folder (``_seed_folders``) whose ``config.json`` differs, with the fields that differ. ``{algo:
+    [(seed, folder, fields)]}``; reading configs only (nothing is evaluated)."""
+    out: dict[str, list[tuple[int, Path, list[str]]]] = {}
+    for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos):
+        if seed in {r["seed"] for r in counted.get(algo, [])}:
+            continue
+        for folder in folders:
+            if differ := _off_recipe(folder, regime_recipe(scene, regime), algo, seed):
+                out.setdefault(algo, []).append((seed, folder, differ))
+                break
     return out
 
 
@@ -234,11 +280,13 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 
 
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,
-                   scenes: list[str]) -> list[str]:
+                   scenes: list[str], off: dict[str, dict[str, list[tuple[int, Path, list[str]]]]] | None = None,
+                   ) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
     seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed;
     for each of ``scenes`` with a reward-alone recipe, a line naming its agents without any run (``lacking_lines``),
-    all of them where the scene has no run at all."""
+    all of them where the scene has no run at all, and one naming its runs left out as trained with another
+    configuration than the recipe gives now (``off``: ``{scene: off_recipe_runs}``)."""
     return [
         "The paper's protocol: reinforcement learning from the reward alone (no demonstrations, no planner labels, no "
         "cloning, no final fit), `training/recipes/<scene>-reward.toml`, one run per training seed, at most "
@@ -251,15 +299,19 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
                     seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}),
         *[line for scene in scenes if regime_agents(scene, "reward") is not None
           for line in lacking_lines(scene, "reward", reward.get(scene, {}), tuple(recipe_seeds(scene, "reward")),
-                                    episodes)],
+                                    episodes, (off or {}).get(scene))],
     ]
 
 
 def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_steps: dict[str, dict[str, int]],
-                   episodes: int, scenes: list[str]) -> list[str]:
+                   episodes: int, scenes: list[str],
+                   off: dict[str, dict[str, dict[str, list[tuple[int, Path, list[str]]]]]] | None = None,
+                   ) -> list[str]:
     """The prediction ablation in the regimes that learn from a planner (``found``: ``{regime: {scene: runs}}`` of
     ``regime_runs``): MDDPG and DDPG seed by seed on the held-out episodes, as in the reward section but without the
-    paper's columns (the paper learnt from the reward alone); the command that trains a missing regime."""
+    paper's columns (the paper learnt from the reward alone); the command that trains a missing regime, and the
+    runs left out as trained with another configuration than the recipe gives now (``off``: ``{regime: {scene:
+    off_recipe_runs}}``)."""
     lines = [
         "MDDPG against DDPG in the regimes that also learn from a planner: `planner` (`training/recipes/"
         "<scene>-planner.toml`, taught by the scripted planner on the agent's own observation) and `oracle-teacher` "
@@ -278,28 +330,49 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
             lines += seed_table(by_scene, recipe_steps[regime], paper=False,
                                 seeds_of={scene: recipe_seeds(scene, regime) for scene in by_scene})
         for scene in with_recipe:
-            lines += lacking_lines(scene, regime, by_scene.get(scene, {}), ("mddpg", "ddpg"), episodes)
+            lines += lacking_lines(scene, regime, by_scene.get(scene, {}), ("mddpg", "ddpg"), episodes,
+                                   (off or {}).get(regime, {}).get(scene))
         lines.append("")
     return lines
 
 
 def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: tuple[str, ...],
-                  episodes: int) -> list[str]:
-    """One line naming the ``algos`` of ``scene``'s recipe of ``regime`` that have no run in ``found`` (``{algo:
+                  episodes: int, off: dict[str, list[tuple[int, Path, list[str]]]] | None = None) -> list[str]:
+    """Lines naming the ``algos`` of ``scene``'s recipe of ``regime`` that have no run in ``found`` (``{algo:
     records}``), with the command that measures them: ``train_shipped.py`` where each is shipped, else
-    ``learning.py``; none if nothing lacks."""
+    ``learning.py``; first a line naming the runs left out as trained with another configuration than the recipe
+    gives now (``off``, ``off_recipe_runs``) with the command that trains them as it is. None if nothing lacks."""
     recipe, by_algo = regime_agents(scene, regime)
-    lacking = [a for a in algos if a not in found]
+    off = {a: seeds for a, seeds in (off or {}).items() if a in algos}
+    lines = []
+    if off:
+        def shown(folder: Path) -> str:
+            return str(folder.relative_to(ROOT) if folder.is_absolute() and folder.is_relative_to(ROOT) else folder)
+
+        each = []
+        for algo, seeds in off.items():
+            fields = sorted({f for _, _, differ in seeds for f in differ})
+            where = Path(os.path.commonpath([str(folder) for _, folder, _ in seeds]))
+            each.append(f"{algo} seed{'s' if len(seeds) > 1 else ''} {', '.join(str(k) for k, _, _ in seeds)} "
+                        f"(other {', '.join(fields)}; `{shown(where)}`)")
+        if all(a in by_algo for a in off):
+            how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {','.join(by_algo[a] for a in off)}` "
+                   "trains them with the recipe as it is")
+        else:
+            how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(off)}` trains them"
+        lines.append(f"- {scene}: left out, trained with another configuration than `{recipe}` gives now (each "
+                     f"run's `config.json` says what it was trained with): {'; '.join(each)}. {how}.")
+    lacking = [a for a in algos if a not in found and a not in off]
     if not lacking:
-        return []
+        return lines
     agents = ",".join(by_algo.get(a, a) for a in lacking)
     if all(a in by_algo and (TRAINED_DIR / f"{scene}_{by_algo[a]}.npz").exists() for a in lacking):
         how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {agents} --redo --episodes-per-run "
                f"{episodes}` measures each seed of the shipped file (and the shipped agent again)")
     else:
         how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(lacking)}` trains them"
-    return [f"- {scene}: no run of `{recipe}` ({', '.join(lacking)}) with a held-out record of {episodes} episodes "
-            f"in this checkout: {how}."]
+    return [*lines, f"- {scene}: no run of `{recipe}` ({', '.join(lacking)}) with a held-out record of {episodes} "
+            f"episodes in this checkout: {how}."]
 
 
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool,
@@ -332,8 +405,8 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
             absent = [k for k in (seeds_of or {}).get(scene, {}).get(algo, ()) if k not in {r["seed"] for r in every}]
             if absent:
                 seeds += (f"; seed{'s' if len(absent) > 1 else ''} {', '.join(map(str, absent))} with no held-out "
-                          "record in this checkout (not trained here, stopped before its first evaluation, or "
-                          "unreadable), left out")
+                          "record of the recipe as it is in this checkout (not trained here, stopped before its "
+                          "first evaluation, unreadable, or trained with another configuration), left out")
             each = ", ".join(f"{100 * r['success']:.0f}" for r in recs)
             row = (f"| {scene} | {algo} | {seeds} | {sum(r['wall_s'] for r in recs) / 60:.0f} min | "
                    f"{_interval([r['success'] for r in recs])} | {each} | ")
@@ -504,21 +577,25 @@ def main() -> None:
             parts.append(part)
     res = EvalResults.merge(parts)
     cfg = res.config
-    reward = {}
+    reward, reward_off = {}, {}
     for scene in scenes:
         print(f"{scene}: the reward-alone runs on held-out episodes", file=sys.stderr)
         if found := reward_runs(scene, Path(args.runs), args.episodes, args.workers):
             reward[scene] = found
+        if regime_agents(scene, "reward") is not None:
+            reward_off[scene] = off_recipe_runs(scene, "reward", Path(args.runs), found)
     recipe_steps = {scene: load_recipe(regime_recipe(scene, "reward")).steps("mddpg") for scene in reward}
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
+    other_off: dict[str, dict[str, dict[str, list[tuple[int, Path, list[str]]]]]] = {}
     for regime in (r for r in REGIMES if r != "reward"):  # (the reward regime has its own section)
-        other_regimes[regime] = {}
+        other_regimes[regime], other_off[regime] = {}, {}
         for scene in scenes:
             if regime_agents(scene, regime) is None:
                 continue
             print(f"{scene}: the {regime} runs on held-out episodes", file=sys.stderr)
             if found := regime_runs(scene, regime, Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg")):
                 other_regimes[regime][scene] = found
+            other_off[regime][scene] = off_recipe_runs(scene, regime, Path(args.runs), found, ("mddpg", "ddpg"))
     other_steps = {regime: {scene: load_recipe(regime_recipe(scene, regime)).steps("mddpg") for scene in by_scene}
                    for regime, by_scene in other_regimes.items()}
     write_report(res, args.out)
@@ -601,13 +678,13 @@ def main() -> None:
         "",
         "## The paper's comparison: learnt from the reward alone",
         "",
-        *(reward_section(reward, recipe_steps, args.episodes, scenes) if reward else [
+        *(reward_section(reward, recipe_steps, args.episodes, scenes, reward_off) if reward else [
             "No run of a reward-alone recipe in this checkout: `python benchmarks/learning.py --recipe deck1-reward` "
             "(and `deck2-reward`, `square-reward`) trains them."]),
         "",
         "## The prediction ablation in the other regimes",
         "",
-        *regime_section(other_regimes, other_steps, args.episodes, scenes),
+        *regime_section(other_regimes, other_steps, args.episodes, scenes, other_off),
         "## What stands behind each number",
         "",
         *provenance(scenes, agents, args.episodes, missing),

@@ -13,6 +13,7 @@ import pytest
 
 from deck_sim.policies import TRAINED_DIR, shipped_log_dir
 from training.heldout import held_out_file
+from training.recipes import load_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,11 +28,12 @@ def make_results():
 
 def _run(out: Path, algo: str, seed: int, success: float, turning: float, steps: int = 1_000_000,
          goal_each: list[int] | None = None, recipe: str = "deck1-reward", total: int = 1_000_000) -> None:
-    """A run folder of ``recipe`` whose actor's held-out record is already cached (no evaluation); each episode's
-    success is the first ``success`` share of the 100 episodes unless ``goal_each`` gives it."""
+    """A run folder of ``recipe`` (its configuration for ``algo`` and ``seed``, ``total`` steps) whose actor's
+    held-out record is already cached (no evaluation); each episode's success is the first ``success`` share of the
+    100 episodes unless ``goal_each`` gives it."""
     run = out / f"{recipe}-{algo}-seed{seed}"
     run.mkdir(parents=True)
-    (run / "config.json").write_text(json.dumps({"scene": "deck1", "seed": seed, "total_steps": total}))
+    load_recipe(recipe).run(algo, seed, total).save(run / "config.json")
     (run / "eval.csv").write_text(f"step,wall_s,episodes,success\n{steps},600.0,100,0.5\n")
     shutil.copyfile(TRAINED_DIR / f"deck1_{algo}.npz", run / "actor_best.npz")
     digest = hashlib.sha256((run / "actor_best.npz").read_bytes()).hexdigest()
@@ -106,13 +108,14 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
         _run(tmp_path, "mddpg", seed, 0.6, 200.0, recipe="square-reward")
     stopped = tmp_path / "square-reward-mddpg-seed2"
     stopped.mkdir()
-    (stopped / "config.json").write_text(json.dumps({"scene": "square", "seed": 2, "total_steps": 1_000_000}))
+    load_recipe("square-reward").run("mddpg", 2).save(stopped / "config.json")
     runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
     assert [r["seed"] for r in runs["mddpg"]] == [0, 1]
     row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])).split(
         "| square | mddpg |")[1].splitlines()[0]
-    assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record in this checkout (not trained here, stopped before " \
-        "its first evaluation, or unreadable), left out | " in row
+    assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record of the recipe as it is in this checkout (not " \
+        "trained here, stopped before its first evaluation, unreadable, or trained with another configuration), " \
+        "left out | " in row
     lines = make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])
     # the recipe's agents without any run, named with the command that trains them
     assert "- square: no run of `square-reward` (ddpg, dqn, a2c) with a held-out record of 100 episodes in this " \
@@ -122,7 +125,7 @@ def test_a_seed_of_the_recipe_without_an_actor_is_named_as_left_out(tmp_path, ma
     runs = make_results.reward_runs("square", tmp_path, 100, workers=1)
     row = "\n".join(make_results.reward_section({"square": runs}, {"square": 1_000_000}, 100, ["square"])).split(
         "| square | mddpg |")[1].splitlines()[0]
-    assert " 1: 0 (1,000,000); seeds 1, 2 with no held-out record in this checkout" in row
+    assert " 1: 0 (1,000,000); seeds 1, 2 with no held-out record of the recipe as it is in this checkout" in row
     assert "no held-out record" not in "\n".join(make_results.seed_table({"square": runs}, {"square": 1_000_000},
                                                                          paper=True))  # (no recipe seeds given)
     targets = "\n".join(make_results.targets(_NoShipped(), {"square": runs}))
@@ -297,3 +300,49 @@ def test_the_whole_script_writes_every_section(tmp_path):
                            env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"})
     assert again.returncode == 0, again.stderr[-2000:]
     assert "summed, those of square from the run that computed them)." in doc.read_text()
+
+
+def test_runs_trained_otherwise_than_the_recipe_gives_now_are_named_not_counted(tmp_path, make_results,
+                                                                                 monkeypatch):
+    """A run whose configuration differs from its recipe's (the recipe changed since it was trained) stays out of
+    the means and the ablation, and the section names it, the fields that differ and the command that trains it
+    with the recipe as it is; a shipped log of the recipe as it is stands in for it."""
+    shipped = {a: make_results.shipped_logs(a, "deck1") for a in ("mddpg-reward", "ddpg-reward")}
+    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: [])  # (run folders only, at first)
+    for seed in (0, 1, 2):
+        _run(tmp_path, "mddpg", seed, 0.9 if seed < 2 else 0.1, 200.0)
+    for seed in (0, 1):
+        _run(tmp_path, "ddpg", seed, 0.8, 150.0)
+    for run in (tmp_path / "deck1-reward-mddpg-seed2", tmp_path / "deck1-reward-ddpg-seed1"):
+        config = json.loads((run / "config.json").read_text())
+        config["scene_overrides"] = {"episode__near_steps": 4}
+        (run / "config.json").write_text(json.dumps(config))
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    assert [r["seed"] for r in runs["mddpg"]] == [0, 1] and [r["seed"] for r in runs["ddpg"]] == [0]
+    off = make_results.off_recipe_runs("deck1", "reward", tmp_path, runs)
+    assert {a: [(k, f.name, d) for k, f, d in v] for a, v in off.items()} == {
+        "mddpg": [(2, "deck1-reward-mddpg-seed2", ["scene_overrides"])],
+        "ddpg": [(1, "deck1-reward-ddpg-seed1", ["scene_overrides"])]}
+    text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100, ["deck1"],
+                                                 {"deck1": off}))
+    row = text.split("| deck1 | mddpg |")[1].splitlines()[0]
+    assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record of the recipe as it is" in row
+    assert "| 90.0 (90.0 to 90.0) | 90, 90 |" in row and ", 10 |" not in row
+    line = next(x for x in text.splitlines() if "left out, trained with another configuration" in x)
+    assert line.startswith("- deck1: left out, trained with another configuration than `deck1-reward` gives now")
+    assert "mddpg seed 2 (other scene_overrides; `" in line and "ddpg seed 1 (other scene_overrides; `" in line
+    assert "`python scripts/train_shipped.py --scenes deck1 --algos mddpg-reward,ddpg-reward` trains them with " \
+        "the recipe as it is." in line
+    assert "- deck1: no run of `deck1-reward` (dqn, a2c) with" in text  # (MDDPG and DDPG have counted runs)
+    # an algorithm whose every seed was trained otherwise is named there, not among those without a run
+    only_off = {"mddpg": [(0, tmp_path / "x", ["hidden"])], "dqn": [(0, tmp_path / "y", ["steps"])]}
+    lines = make_results.lacking_lines("deck1", "reward", {"ddpg": runs["ddpg"]}, ("mddpg", "ddpg", "dqn", "a2c"),
+                                       100, only_off)
+    assert len(lines) == 2 and "mddpg seed 0 (other hidden;" in lines[0] and "dqn seed 0 (other steps;" in lines[0]
+    assert "- deck1: no run of `deck1-reward` (a2c) with a held-out record" in lines[1]
+    # the shipped logs, trained with the recipe as it is, stand in for the seeds whose run folder differs
+    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: shipped.get(agent, []))
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2] and [r["seed"] for r in runs["ddpg"]] == [0, 1, 2]
+    assert runs["mddpg"][2]["success"] != 0.1 and runs["ddpg"][1]["success"] != 0.8
+    assert make_results.off_recipe_runs("deck1", "reward", tmp_path, runs) == {}
