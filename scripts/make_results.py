@@ -125,10 +125,22 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
                 seeds = fig.get("seeds") or [fig.get("seed", "?")]
                 runs = seeds_text(seeds, fig.get("trained_seeds"))
                 learnt = shipped_regime(scene, agent) or "not recorded"
+                if earlier := earlier_recipe(scene, agent):
+                    learnt += f" ({earlier})"
                 lines.append(f"| {agent} | {scene} | {learnt} | {runs} | {steps} | {wall} | {episodes} |")
             else:
                 lines.append(f"| {agent} | {scene} | - | none (no training) | - | - | {episodes} |")
     return lines
+
+
+def earlier_recipe(scene: str, agent: str) -> str | None:
+    """Where the runs behind the shipped ``agent`` of ``scene`` were trained with another configuration than its
+    recipe gives now (their logs shipped beside it, ``config_differences``), a phrase naming the recipe and the
+    fields that differ; None where every shipped run is the recipe's or no logs are shipped."""
+    recipe = load_recipe(recipe_name(agent, scene))
+    fields = sorted({f for folder, seed in shipped_logs(agent, scene) if seed is not None
+                     for f in config_differences(folder, recipe.run(training_algo(agent), seed))})
+    return f"trained with other {', '.join(fields)} than `{recipe.name}` gives now" if fields else None
 
 
 def shipped_regime(scene: str, agent: str) -> str | None:

@@ -207,9 +207,9 @@ def test_a_scene_without_reward_runs_gives_nothing(tmp_path, make_results):
 
 
 def test_shipped_reward_runs_are_read_without_their_run_folders(tmp_path, make_results):
-    """Deck 2's shipped reward-alone actors stand in for their run folders: each shipped seed's held-out record
+    """Deck 1's shipped reward-alone actors stand in for their run folders: each shipped seed's held-out record
     and training log, the runs finished."""
-    runs = make_results.reward_runs("deck2", tmp_path, 100, workers=1)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
     assert set(runs) >= {"mddpg", "ddpg"}
     for algo in ("mddpg", "ddpg"):
         assert all(r["finished"] and r["steps"] == 1_000_000 and len(r["goal_each"]) == 100 for r in runs[algo])
@@ -346,3 +346,21 @@ def test_runs_trained_otherwise_than_the_recipe_gives_now_are_named_not_counted(
     assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2] and [r["seed"] for r in runs["ddpg"]] == [0, 1, 2]
     assert runs["mddpg"][2]["success"] != 0.1 and runs["ddpg"][1]["success"] != 0.8
     assert make_results.off_recipe_runs("deck1", "reward", tmp_path, runs) == {}
+
+
+def test_a_shipped_agent_whose_runs_the_recipe_no_longer_gives_says_so_in_its_provenance(tmp_path, make_results,
+                                                                                         monkeypatch):
+    """The table of what stands behind each number names, beside a shipped agent's regime, the fields in which the
+    runs shipped with it differ from what its recipe gives now."""
+    logs = [(shutil.copytree(folder, tmp_path / f"seed{seed}"), seed)
+            for folder, seed in make_results.shipped_logs("mddpg-reward", "deck1")]
+    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: logs)
+    assert make_results.earlier_recipe("deck1", "mddpg-reward") is None
+    config = json.loads((logs[1][0] / "config.json").read_text())
+    config["scene_overrides"] = {"episode__near_steps": 4}
+    (logs[1][0] / "config.json").write_text(json.dumps(config))
+    assert make_results.earlier_recipe("deck1", "mddpg-reward") == \
+        "trained with other scene_overrides than `deck1-reward` gives now"
+    row = next(x for x in make_results.provenance(["deck1"], ["mddpg-reward"], 100, {"deck1": []})
+               if x.startswith("| mddpg-reward |"))
+    assert "| reward (trained with other scene_overrides than `deck1-reward` gives now) |" in row
