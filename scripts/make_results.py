@@ -283,12 +283,19 @@ def reward_runs(scene: str, runs_dir: Path, episodes: int, workers: int | None) 
 
 
 def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> str:
-    """Mean over seeds, with its Student-t 95 % interval over seeds when there are several."""
-    m, lo, hi = mean_interval(values)
-    if len(values) < 2:
-        return f"{scale * m:{spec}} (one seed)"
-    lo, hi = (max(0.0, lo), min(1.0, hi)) if scale == 100.0 else (lo, hi)
-    return f"{scale * m:{spec}} ({scale * lo:{spec}} to {scale * hi:{spec}})"
+    """Mean over seeds, with its Student-t 95 % interval over seeds when there are several. A seed without a value
+    (path and turning of a run with no successful episode) is left out, and named; "-" when no seed has one."""
+    have = [v for v in values if not np.isnan(v)]
+    if not have:
+        return "-"
+    m, lo, hi = mean_interval(have)
+    if len(have) < 2:
+        text = f"{scale * m:{spec}} (one seed)"
+    else:
+        lo, hi = (max(0.0, lo), min(1.0, hi)) if scale == 100.0 else (lo, hi)
+        text = f"{scale * m:{spec}} ({scale * lo:{spec}} to {scale * hi:{spec}})"
+    missing = len(values) - len(have)
+    return text + (f", {missing} seed{'s' if missing > 1 else ''} without a success left out" if missing else "")
 
 
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,

@@ -364,3 +364,15 @@ def test_a_shipped_agent_whose_runs_the_recipe_no_longer_gives_says_so_in_its_pr
     row = next(x for x in make_results.provenance(["deck1"], ["mddpg-reward"], 100, {"deck1": []})
                if x.startswith("| mddpg-reward |"))
     assert "| reward (trained with other scene_overrides than `deck1-reward` gives now) |" in row
+
+
+def test_a_seed_without_a_success_has_no_path_or_turning_and_is_named(make_results):
+    """Path and turning average over successful episodes: a seed with none has no value, so the mean is over the
+    other seeds and the cell says how many were left out ("-" when none has one)."""
+    # 1.1 and 1.3: sd 0.141, t(1) 12.706 -> +- 1.271
+    assert make_results._interval([1.1, float("nan"), 1.3], 1.0, ".3f") == \
+        "1.200 (-0.071 to 2.471), 1 seed without a success left out"
+    assert make_results._interval([float("nan")], 1.0, ".0f") == "-"
+    assert make_results._interval([250.0, float("nan")], 1.0, ".0f") == \
+        "250 (one seed), 1 seed without a success left out"
+    assert make_results._interval([0.5, 0.7]) == "60.0 (0.0 to 100.0)"
