@@ -57,7 +57,7 @@ from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_d
 from deck_sim.policies.regimes import REGIMES, actor_regime, config_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
-from training.recipes import config_differences, load_recipe, recipe_names  # noqa: E402
+from training.recipes import config_differences, load_recipe, recipe_names, shipped_differences  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
@@ -135,12 +135,10 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
 
 def earlier_recipe(scene: str, agent: str) -> str | None:
     """Where the runs behind the shipped ``agent`` of ``scene`` were trained with another configuration than its
-    recipe gives now (their logs shipped beside it, ``config_differences``), a phrase naming the recipe and the
+    recipe gives now (``training.recipes.shipped_differences``), a phrase naming the recipe and the
     fields that differ; None where every shipped run is the recipe's or no logs are shipped."""
-    recipe = load_recipe(recipe_name(agent, scene))
-    fields = sorted({f for folder, seed in shipped_logs(agent, scene) if seed is not None
-                     for f in config_differences(folder, recipe.run(training_algo(agent), seed))})
-    return f"trained with other {', '.join(fields)} than `{recipe.name}` gives now" if fields else None
+    fields = shipped_differences(scene, agent)
+    return f"trained with other {', '.join(fields)} than `{recipe_name(agent, scene)}` gives now" if fields else None
 
 
 def shipped_regime(scene: str, agent: str) -> str | None:

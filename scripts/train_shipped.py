@@ -98,7 +98,13 @@ from training.config import ConfigError, TrainConfig  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file, shipped_held_out  # noqa: E402
 from training.loop import shipped_actor  # noqa: E402
-from training.recipes import config_differences, differing_fields, load_recipe, recipe_names  # noqa: E402
+from training.recipes import (  # noqa: E402
+    config_differences,
+    differing_fields,
+    load_recipe,
+    recipe_names,
+    shipped_differences,
+)
 
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
@@ -659,6 +665,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
     ]
     for scene, algo, r in shipped_records(report):
         recipe = f"`training/recipes/{recipe_name(algo, scene)}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
+        if differ := shipped_differences(scene, algo):  # (the recipe changed after this file shipped)
+            recipe += f", trained with other {', '.join(differ)} than it gives now"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
         members = meta.get("members") or []
@@ -703,8 +711,11 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
     ]
     for scene, algo, r in shipped_records(report):
         runs = seeds_text(r.get("seeds", []), r.get("trained_seeds"))
+        learnt = learnt_from(scene, algo)
+        if differ := shipped_differences(scene, algo):
+            learnt += f" (trained with other {', '.join(differ)} than `{recipe_name(algo, scene)}` gives now)"
         lines.append(
-            f"| {scene} | {LABELS.get(algo, algo)} | {learnt_from(scene, algo)} | {runs} | "
+            f"| {scene} | {LABELS.get(algo, algo)} | {learnt} | {runs} | "
             f"{100 * r['success']:.1f} % | "
             f"{100 * r['collision']:.1f} % | "
             f"{100 * r['timeout']:.1f} % | {100 * r['off_surface']:.1f} % | {r['train_steps']:,} | "

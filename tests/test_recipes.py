@@ -7,6 +7,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -224,3 +225,25 @@ def test_the_multi_aircraft_recipe_trains_a_shared_taught_actor_on_deck1_multi()
         config = recipe.config(algo, 0)
         assert is_multi_agent(config) and config.regime == "oracle-teacher"
         assert _refused(config) == []  # the shared trainer takes every field of the recipe
+
+
+def test_shipped_differences_name_the_fields_a_recipe_changed_after_its_agent_shipped(tmp_path, monkeypatch):
+    """The runs shipped beside an agent are compared with what its recipe gives each seed now; a DQN or A2C config
+    of the first format, which left the evaluation episodes out, counts only the fields it records."""
+    import deck_sim.policies
+    from deck_sim.policies import shipped_logs
+    from training.recipes import shipped_differences
+
+    copies = {agent: [(shutil.copytree(folder, tmp_path / agent / f"seed{seed}"), seed)
+                      for folder, seed in shipped_logs(agent, "deck1")] for agent in ("mddpg-reward", "dqn")}
+    monkeypatch.setattr(deck_sim.policies, "shipped_logs", lambda agent, scene: copies[agent])
+    assert shipped_differences("deck1", "mddpg-reward") == []
+    path = copies["mddpg-reward"][-1][0] / "config.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "scene_overrides": {"episode__near_steps": 4},
+                                "hidden": [64, 64]}))
+    assert shipped_differences("deck1", "mddpg-reward") == ["hidden", "scene_overrides"]
+    path = copies["dqn"][0][0] / "config.json"
+    assert "eval_episodes" not in json.loads(path.read_text())  # (the first format)
+    assert shipped_differences("deck1", "dqn") == []
+    path.write_text(json.dumps({**json.loads(path.read_text()), "eval_episodes": 7}))
+    assert shipped_differences("deck1", "dqn") == ["eval_episodes"]

@@ -352,9 +352,11 @@ def test_a_shipped_agent_whose_runs_the_recipe_no_longer_gives_says_so_in_its_pr
                                                                                          monkeypatch):
     """The table of what stands behind each number names, beside a shipped agent's regime, the fields in which the
     runs shipped with it differ from what its recipe gives now."""
+    import deck_sim.policies
+
     logs = [(shutil.copytree(folder, tmp_path / f"seed{seed}"), seed)
             for folder, seed in make_results.shipped_logs("mddpg-reward", "deck1")]
-    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: logs)
+    monkeypatch.setattr(deck_sim.policies, "shipped_logs", lambda agent, scene: logs)
     assert make_results.earlier_recipe("deck1", "mddpg-reward") is None
     config = json.loads((logs[1][0] / "config.json").read_text())
     config["scene_overrides"] = {"episode__near_steps": 4}

@@ -205,6 +205,30 @@ def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) 
     return differing_fields(want, have)
 
 
+def shipped_differences(scene: str, agent: str) -> list[str]:
+    """The fields in which the runs behind the shipped ``agent`` of ``scene`` (their logs beside the actor,
+    ``deck_sim.policies.shipped_logs``) differ from what the agent's recipe gives each seed now
+    (``config_differences``), sorted; empty where every shipped run is the recipe's or no logs are shipped. A
+    recipe changed after its agent shipped makes it non-empty until ``scripts/train_shipped.py`` trains again.
+    A DQN or A2C run counts only the fields its ``config.json`` records: the first format of that file left some
+    out (the evaluation episodes), which says nothing of what the run used."""
+    from deck_sim.policies import shipped_logs
+
+    recipe = load_recipe(agents.recipe_name(agent, scene))
+    algo = agents.training_algo(agent)
+    found = set()
+    for folder, seed in shipped_logs(agent, scene):
+        if seed is None:
+            continue
+        differ = config_differences(folder, recipe.run(algo, seed))
+        if _trainer(algo) == "sb3" and differ != ["config.json"]:
+            saved = json.loads((Path(folder) / "config.json").read_text())
+            recorded = {*saved, *saved.get("sb3", {}), *(["total_steps"] if "steps" in saved else [])}
+            differ = [f for f in differ if f in recorded]
+        found.update(differ)
+    return sorted(found)
+
+
 NOTES = frozenset({"extra"})
 """The config keys that hold notes stored with a run (the recipe's or preset's name), which the trainer never
 reads: two runs that differ in them alone are the same training."""
