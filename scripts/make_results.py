@@ -35,6 +35,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -189,11 +190,23 @@ def recipe_seeds(scene: str, regime: str) -> dict[str, tuple[int, ...]]:
     return {algo: recipe.seeds(algo) for algo in recipe.algos}
 
 
+class OffRecipe(NamedTuple):
+    """A run trained with another configuration than its recipe gives now (``off_recipe_runs``)."""
+
+    seed: int
+    folder: Path
+    fields: list[str]
+    """The config fields that differ."""
+    run_folder: bool
+    """A run folder of ``--runs`` (True) or the logs shipped beside an actor (False)."""
+
+
 def _seed_folders(scene: str, regime: str, runs_dir: Path, algos: tuple[str, ...] | None = None,
-                  ) -> list[tuple[str, int, list[Path]]]:
+                  ) -> list[tuple[str, int, list[tuple[Path, bool]]]]:
     """For each algorithm (``algos`` of it, default all) and seed of ``scene``'s recipe of ``regime``, the folders
-    that may hold its run, in the order they are read: the run folder ``<runs_dir>/<recipe>-<algo>-seed<k>``, then
-    the logs shipped beside the regime's actor (``deck_sim.policies.shipped_logs``), where present."""
+    that may hold its run, in the order they are read, each with whether it is a run folder: the run folder
+    ``<runs_dir>/<recipe>-<algo>-seed<k>`` (True), then the logs shipped beside the regime's actor
+    (``deck_sim.policies.shipped_logs``; False), those with a ``config.json``."""
     if (found := regime_agents(scene, regime)) is None:
         return []
     recipe, agents = load_recipe(found[0]), found[1]
@@ -204,8 +217,8 @@ def _seed_folders(scene: str, regime: str, runs_dir: Path, algos: tuple[str, ...
         shipped = ({seed: folder for folder, seed in shipped_logs(agents[algo], scene) if seed is not None}
                    if algo in agents else {})
         for seed in recipe.seeds(algo):
-            folders = [runs_dir / f"{recipe.name}-{algo}-seed{seed}", shipped.get(seed)]
-            out.append((algo, seed, [f for f in folders if f is not None and (f / "config.json").exists()]))
+            folders = [(runs_dir / f"{recipe.name}-{algo}-seed{seed}", True), (shipped.get(seed), False)]
+            out.append((algo, seed, [(f, own) for f, own in folders if f is not None and (f / "config.json").exists()]))
     return out
 
 
@@ -230,10 +243,10 @@ def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers:
     out: dict[str, list[dict]] = {}
     for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos):
         record = run = None
-        for folder in folders:
+        for folder, own in folders:
             if _off_recipe(folder, regime_recipe(scene, regime), algo, seed):
                 continue
-            if folder.parent == runs_dir:
+            if own:
                 try:
                     record = held_out(folder, episodes, workers, per_episode=True)
                 except HeldOutError:
@@ -258,18 +271,18 @@ def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers:
 
 
 def off_recipe_runs(scene: str, regime: str, runs_dir: Path, counted: dict[str, list[dict]],
-                    algos: tuple[str, ...] | None = None) -> dict[str, list[tuple[int, Path, list[str]]]]:
+                    algos: tuple[str, ...] | None = None) -> dict[str, list[OffRecipe]]:
     """The runs of ``scene``'s recipe of ``regime`` that ``regime_runs`` leaves out because they were trained with
     another configuration than the recipe gives now: for each seed not in ``counted`` (``regime_runs``'s records),
-    its first folder (``_seed_folders``) whose ``config.json`` differs, with the fields that differ. ``{algo:
-    [(seed, folder, fields)]}``; reading configs only (nothing is evaluated)."""
-    out: dict[str, list[tuple[int, Path, list[str]]]] = {}
+    its first folder (``_seed_folders``) whose ``config.json`` differs, with the fields that differ and whether it
+    is a run folder (else shipped logs). ``{algo: [OffRecipe]}``; reading configs only (nothing is evaluated)."""
+    out: dict[str, list[OffRecipe]] = {}
     for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos):
         if seed in {r["seed"] for r in counted.get(algo, [])}:
             continue
-        for folder in folders:
+        for folder, own in folders:
             if differ := _off_recipe(folder, regime_recipe(scene, regime), algo, seed):
-                out.setdefault(algo, []).append((seed, folder, differ))
+                out.setdefault(algo, []).append(OffRecipe(seed, folder, differ, own))
                 break
     return out
 
@@ -297,7 +310,7 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 
 
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,
-                   scenes: list[str], off: dict[str, dict[str, list[tuple[int, Path, list[str]]]]] | None = None,
+                   scenes: list[str], off: dict[str, dict[str, list[OffRecipe]]] | None = None,
                    ) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
     seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed;
@@ -312,8 +325,8 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         "--recipe <scene>-reward` trains the runs and prints the same figures). Means over seeds with their "
         "Student-t 95 % interval over seeds; path and turning over successful episodes.",
         "",
-        *seed_table(reward, recipe_steps, paper=True,
-                    seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}),
+        *(seed_table(reward, recipe_steps, paper=True,
+                     seeds_of={scene: recipe_seeds(scene, "reward") for scene in reward}) if reward else []),
         *[line for scene in scenes if regime_agents(scene, "reward") is not None
           for line in lacking_lines(scene, "reward", reward.get(scene, {}), tuple(recipe_seeds(scene, "reward")),
                                     episodes, (off or {}).get(scene))],
@@ -322,7 +335,7 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
 
 def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_steps: dict[str, dict[str, int]],
                    episodes: int, scenes: list[str],
-                   off: dict[str, dict[str, dict[str, list[tuple[int, Path, list[str]]]]]] | None = None,
+                   off: dict[str, dict[str, dict[str, list[OffRecipe]]]] | None = None,
                    ) -> list[str]:
     """The prediction ablation in the regimes that learn from a planner (``found``: ``{regime: {scene: runs}}`` of
     ``regime_runs``): MDDPG and DDPG seed by seed on the held-out episodes, as in the reward section but without the
@@ -354,11 +367,11 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
 
 
 def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: tuple[str, ...],
-                  episodes: int, off: dict[str, list[tuple[int, Path, list[str]]]] | None = None) -> list[str]:
+                  episodes: int, off: dict[str, list[OffRecipe]] | None = None) -> list[str]:
     """Lines naming the ``algos`` of ``scene``'s recipe of ``regime`` that have no run in ``found`` (``{algo:
     records}``), with the command that measures them: ``train_shipped.py`` where each is shipped, else
     ``learning.py``; first a line naming the runs left out as trained with another configuration than the recipe
-    gives now (``off``, ``off_recipe_runs``) with the command that trains them as it is. None if nothing lacks."""
+    gives now (``off``, ``off_recipe_runs``) with the command that trains them as it is. Empty if nothing lacks."""
     recipe, by_algo = regime_agents(scene, regime)
     off = {a: seeds for a, seeds in (off or {}).items() if a in algos}
     lines = []
@@ -366,17 +379,21 @@ def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: 
         def shown(folder: Path) -> str:
             return str(folder.relative_to(ROOT) if folder.is_absolute() and folder.is_relative_to(ROOT) else folder)
 
-        each = []
+        each, move = [], []
         for algo, seeds in off.items():
-            fields = sorted({f for _, _, differ in seeds for f in differ})
-            where = Path(os.path.commonpath([str(folder) for _, folder, _ in seeds]))
-            each.append(f"{algo} seed{'s' if len(seeds) > 1 else ''} {', '.join(str(k) for k, _, _ in seeds)} "
-                        f"(other {', '.join(fields)}; `{shown(where)}`)")
+            fields = sorted({f for run in seeds for f in run.fields})
+            where = sorted({shown(run.folder.parent) if run.run_folder else
+                            shown(shipped_log_dir(by_algo.get(algo, algo), scene)) for run in seeds})
+            move += [f"`{shown(run.folder)}`" for run in seeds if run.run_folder]
+            each.append(f"{algo} seed{'s' if len(seeds) > 1 else ''} {', '.join(str(run.seed) for run in seeds)} "
+                        f"(other {', '.join(fields)}; in {', '.join(f'`{w}`' for w in where)})")
         if all(a in by_algo for a in off):
-            how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {','.join(by_algo[a] for a in off)}` "
-                   "trains them with the recipe as it is")
+            how = (f"`python scripts/train_shipped.py --scenes {scene} --algos {','.join(by_algo[a] for a in off)} "
+                   "--redo` trains them with the recipe as it is")
         else:
             how = f"`python benchmarks/learning.py --recipe {recipe} --arms {','.join(off)}` trains them"
+        if move:
+            how += f" once {', '.join(move)} {'is' if len(move) == 1 else 'are'} moved away"
         lines.append(f"- {scene}: left out, trained with another configuration than `{recipe}` gives now (each "
                      f"run's `config.json` says what it was trained with): {'; '.join(each)}. {how}.")
     lacking = [a for a in algos if a not in found and a not in off]
@@ -477,8 +494,9 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True)
         else:  # (one seed's episodes say nothing of the spread between training seeds)
             verdict = "one seed, no verdict" + (f" (95 % interval {spread})" if intervals else "")
         ranks = f"; the paper ranks {a} above {b}" if paper else ""
-        out.append(f"- {scene}: {a} - {b}, success paired over seeds {', '.join(map(str, both))}{left_out}: "
-                   f"{100 * m:+.1f} points, {verdict}{ranks}.")
+        over = f"seed{'s' if len(both) > 1 else ''} {', '.join(map(str, both))}"
+        out.append(f"- {scene}: {a} - {b}, success paired over {over}{left_out}: {100 * m:+.1f} points, "
+                   f"{verdict}{ranks}.")
     done = {a: [r for r in algos.get(a, []) if r["finished"]] for a in ("mddpg", "ddpg")}
     if done["mddpg"] and done["ddpg"]:
         for key, paper_key, more, less, same, what, unit, paper_unit in (
@@ -603,7 +621,7 @@ def main() -> None:
             reward_off[scene] = off_recipe_runs(scene, "reward", Path(args.runs), found)
     recipe_steps = {scene: load_recipe(regime_recipe(scene, "reward")).steps("mddpg") for scene in reward}
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
-    other_off: dict[str, dict[str, dict[str, list[tuple[int, Path, list[str]]]]]] = {}
+    other_off: dict[str, dict[str, dict[str, list[OffRecipe]]]] = {}
     for regime in (r for r in REGIMES if r != "reward"):  # (the reward regime has its own section)
         other_regimes[regime], other_off[regime] = {}, {}
         for scene in scenes:
@@ -695,7 +713,8 @@ def main() -> None:
         "",
         "## The paper's comparison: learnt from the reward alone",
         "",
-        *(reward_section(reward, recipe_steps, args.episodes, scenes, reward_off) if reward else [
+        *(reward_section(reward, recipe_steps, args.episodes, scenes, reward_off)
+          if reward or any(reward_off.values()) else [
             "No run of a reward-alone recipe in this checkout: `python benchmarks/learning.py --recipe deck1-reward` "
             "(and `deck2-reward`, `square-reward`) trains them."]),
         "",

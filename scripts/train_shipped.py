@@ -344,10 +344,14 @@ def run_config(scene: str, algo: str, steps: int, seed: int, fields: dict[str, A
 
 
 def train(run: Path, scene: str, algo: str, steps: int, seed: int, fields: dict[str, Any]) -> None:
-    """Train (or resume) the run unless it has finished (a final ``actor.npz``)."""
+    """Train (or resume) the run unless it has finished (a final ``actor.npz``); ``SystemExit`` if the folder holds
+    a run of another configuration than the recipe gives now (its length aside: ``--steps`` may extend a run)."""
+    plan = run_config(scene, algo, steps, seed, fields)
+    if (run / "config.json").exists() and (differ := [f for f in config_differences(run, plan) if f != "total_steps"]):
+        raise SystemExit(f"{run}: a run trained with other {', '.join(differ)} than the recipe gives now; move it "
+                         "away (or give another --out) to train the recipe's run there")
     if (run / "actor.npz").exists():
         return
-    plan = run_config(scene, algo, steps, seed, fields)
     if algo in DDPG_ALGOS:
         from training.loop import Trainer
 

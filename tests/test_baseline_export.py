@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import deck_sim
-from deck_sim.agents import AGENTS
+from deck_sim.agents import AGENTS, recipe_name
 from deck_sim.policies import (
     EnsemblePolicy,
     LearnedPolicy,
@@ -24,6 +24,7 @@ from deck_sim.policies import (
     shipped_logs,
     write_actor_file,
 )
+from training.recipes import shipped_differences
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
 
@@ -194,7 +195,11 @@ def test_project_readme_table_matches_results_json():
         scene, label, learnt, runs, success, collision, timeout, off, steps, wall = cells
         record = _shipped_agents()[scene][labels[label]]
         agent = AGENTS[labels[label]]
+        learnt, _, note = learnt.partition(" (")  # (a file shipped before its recipe changed says so)
         assert learnt == ("reward" if agent.trainer == "sb3" else agent.recipe or "oracle-teacher")
+        differ = shipped_differences(scene, labels[label])
+        assert note == (f"trained with other {', '.join(differ)} than `{recipe_name(labels[label], scene)}` gives "
+                        "now)" if differ else ""), (scene, label)
         assert runs == seeds_text(record["seeds"], record.get("trained_seeds")), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):
@@ -539,3 +544,23 @@ def test_an_ensemble_shipped_under_a_recipes_old_name_keeps_its_seeds_and_gets_t
     longer = {**new, "config": {**new["config"], "total_steps": 2 * steps}}
     with pytest.raises(SystemExit, match="differ in more than their seed \\(total_steps\\)"):
         script.ship([members[0], LearnedPolicy(members[1].arrays, longer)], dest)
+
+
+def test_a_run_folder_of_another_configuration_is_refused_not_reused(tmp_path):
+    """A finished run folder counts as the recipe's run only if its config is what the recipe gives now (its
+    length aside): one trained with other fields stops the script with the folder and the fields named."""
+    from training.recipes import load_recipe
+
+    script = _train_shipped()
+    steps = script.default_steps("deck1", "mddpg-reward")
+    run = tmp_path / "deck1-reward-mddpg-seed0"
+    run.mkdir()
+    load_recipe("deck1-reward").run("mddpg", 0).save(run / "config.json")
+    (run / "actor.npz").write_bytes(b"")  # finished: nothing to train
+    script.train(run, "deck1", "mddpg-reward", steps, 0, {})
+    script.train(run, "deck1", "mddpg-reward", 2 * steps, 0, {})  # (another length: --steps extends a run)
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, "scene_overrides": {"episode__near_steps": 4}}))
+    with pytest.raises(SystemExit, match="deck1-reward-mddpg-seed0: a run trained with other scene_overrides than "
+                                         "the recipe gives now; move it away"):
+        script.train(run, "deck1", "mddpg-reward", steps, 0, {})

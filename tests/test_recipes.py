@@ -7,7 +7,6 @@ import importlib.util
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -229,21 +228,34 @@ def test_the_multi_aircraft_recipe_trains_a_shared_taught_actor_on_deck1_multi()
 
 def test_shipped_differences_name_the_fields_a_recipe_changed_after_its_agent_shipped(tmp_path, monkeypatch):
     """The runs shipped beside an agent are compared with what its recipe gives each seed now; a DQN or A2C config
-    of the first format, which left the evaluation episodes out, counts only the fields it records."""
+    of the first format, which did not record the evaluation fields, is compared on the fields it records."""
     import deck_sim.policies
-    from deck_sim.policies import shipped_logs
     from training.recipes import shipped_differences
 
-    copies = {agent: [(shutil.copytree(folder, tmp_path / agent / f"seed{seed}"), seed)
-                      for folder, seed in shipped_logs(agent, "deck1")] for agent in ("mddpg-reward", "dqn")}
-    monkeypatch.setattr(deck_sim.policies, "shipped_logs", lambda agent, scene: copies[agent])
+    recipe = load_recipe("deck1-reward")
+    logs = {"mddpg-reward": [], "dqn-reward": []}
+    for seed in (0, 1):
+        folder = tmp_path / "mddpg" / f"seed{seed}"
+        folder.mkdir(parents=True)
+        recipe.run("mddpg", seed).save(folder / "config.json")
+        logs["mddpg-reward"].append((folder, seed))
+    plan = recipe.run("dqn", 0)  # the first format: the run's length as steps, the SB3 keywords under sb3
+    first = {"algo": "dqn", "predictor": "none", "scene": plan["scene"], "seed": 0, "steps": plan["steps"],
+             "scene_overrides": plan.get("scene_overrides", {}),
+             "sb3": {k: v for k, v in plan.items() if k not in ("algo", "scene", "seed", "steps", "scene_overrides",
+                                                                  "eval_every", "eval_episodes")}}
+    (tmp_path / "dqn").mkdir()
+    (tmp_path / "dqn" / "config.json").write_text(json.dumps(first))
+    logs["dqn-reward"].append((tmp_path / "dqn", 0))
+    monkeypatch.setattr(deck_sim.policies, "shipped_logs", lambda agent, scene: logs[agent])
     assert shipped_differences("deck1", "mddpg-reward") == []
-    path = copies["mddpg-reward"][-1][0] / "config.json"
+    path = tmp_path / "mddpg" / "seed1" / "config.json"
     path.write_text(json.dumps({**json.loads(path.read_text()), "scene_overrides": {"episode__near_steps": 4},
                                 "hidden": [64, 64]}))
     assert shipped_differences("deck1", "mddpg-reward") == ["hidden", "scene_overrides"]
-    path = copies["dqn"][0][0] / "config.json"
-    assert "eval_episodes" not in json.loads(path.read_text())  # (the first format)
-    assert shipped_differences("deck1", "dqn") == []
-    path.write_text(json.dumps({**json.loads(path.read_text()), "eval_episodes": 7}))
-    assert shipped_differences("deck1", "dqn") == ["eval_episodes"]
+    assert shipped_differences("deck1", "dqn-reward") == []
+    path = tmp_path / "dqn" / "config.json"
+    path.write_text(json.dumps({**first, "eval_episodes": 7}))  # (recorded: compared)
+    assert shipped_differences("deck1", "dqn-reward") == ["eval_episodes"]
+    path.write_text(json.dumps({**first, "sb3": {**first["sb3"], "gamma": 0.5}}))
+    assert shipped_differences("deck1", "dqn-reward") == ["gamma"]

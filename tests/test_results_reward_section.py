@@ -306,46 +306,58 @@ def test_runs_trained_otherwise_than_the_recipe_gives_now_are_named_not_counted(
                                                                                  monkeypatch):
     """A run whose configuration differs from its recipe's (the recipe changed since it was trained) stays out of
     the means and the ablation, and the section names it, the fields that differ and the command that trains it
-    with the recipe as it is; a shipped log of the recipe as it is stands in for it."""
-    shipped = {a: make_results.shipped_logs(a, "deck1") for a in ("mddpg-reward", "ddpg-reward")}
-    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: [])  # (run folders only, at first)
+    with the recipe as it is; shipped logs of the recipe as it is stand in for it."""
+    shipped: dict[str, list] = {}
+    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: shipped.get(agent, []))
+    runs_dir = tmp_path / "runs"
     for seed in (0, 1, 2):
-        _run(tmp_path, "mddpg", seed, 0.9 if seed < 2 else 0.1, 200.0)
+        _run(runs_dir, "mddpg", seed, 0.9 if seed < 2 else 0.1, 200.0)
     for seed in (0, 1):
-        _run(tmp_path, "ddpg", seed, 0.8, 150.0)
-    for run in (tmp_path / "deck1-reward-mddpg-seed2", tmp_path / "deck1-reward-ddpg-seed1"):
+        _run(runs_dir, "ddpg", seed, 0.8 if seed == 0 else 0.7, 150.0)
+    for run in (runs_dir / "deck1-reward-mddpg-seed2", runs_dir / "deck1-reward-ddpg-seed1"):
         config = json.loads((run / "config.json").read_text())
         config["scene_overrides"] = {"episode__near_steps": 4}
         (run / "config.json").write_text(json.dumps(config))
-    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    runs = make_results.reward_runs("deck1", runs_dir, 100, workers=1)
     assert [r["seed"] for r in runs["mddpg"]] == [0, 1] and [r["seed"] for r in runs["ddpg"]] == [0]
-    off = make_results.off_recipe_runs("deck1", "reward", tmp_path, runs)
-    assert {a: [(k, f.name, d) for k, f, d in v] for a, v in off.items()} == {
-        "mddpg": [(2, "deck1-reward-mddpg-seed2", ["scene_overrides"])],
-        "ddpg": [(1, "deck1-reward-ddpg-seed1", ["scene_overrides"])]}
+    off = make_results.off_recipe_runs("deck1", "reward", runs_dir, runs)
+    assert {a: [(r.seed, r.folder.name, r.fields, r.run_folder) for r in v] for a, v in off.items()} == {
+        "mddpg": [(2, "deck1-reward-mddpg-seed2", ["scene_overrides"], True)],
+        "ddpg": [(1, "deck1-reward-ddpg-seed1", ["scene_overrides"], True)]}
     text = "\n".join(make_results.reward_section({"deck1": runs}, {"deck1": 1_000_000}, 100, ["deck1"],
                                                  {"deck1": off}))
     row = text.split("| deck1 | mddpg |")[1].splitlines()[0]
     assert " 2: 0, 1 (1,000,000); seed 2 with no held-out record of the recipe as it is" in row
     assert "| 90.0 (90.0 to 90.0) | 90, 90 |" in row and ", 10 |" not in row
+    # the ablation pairs the counted seeds alone: seed 0 (90 against 80), not seed 1's 70 % run of another config
+    assert "deck1: mddpg - ddpg, success paired over seed 0: +10.0 points, one seed, no verdict" in text
     line = next(x for x in text.splitlines() if "left out, trained with another configuration" in x)
     assert line.startswith("- deck1: left out, trained with another configuration than `deck1-reward` gives now")
-    assert "mddpg seed 2 (other scene_overrides; `" in line and "ddpg seed 1 (other scene_overrides; `" in line
-    assert "`python scripts/train_shipped.py --scenes deck1 --algos mddpg-reward,ddpg-reward` trains them with " \
-        "the recipe as it is." in line
+    assert f"mddpg seed 2 (other scene_overrides; in `{runs_dir}`)" in line
+    assert f"ddpg seed 1 (other scene_overrides; in `{runs_dir}`)" in line
+    assert ("`python scripts/train_shipped.py --scenes deck1 --algos mddpg-reward,ddpg-reward --redo` trains them "
+            f"with the recipe as it is once `{runs_dir / 'deck1-reward-mddpg-seed2'}`, "
+            f"`{runs_dir / 'deck1-reward-ddpg-seed1'}` are moved away.") in line
     assert "- deck1: no run of `deck1-reward` (dqn, a2c) with" in text  # (MDDPG and DDPG have counted runs)
-    # an algorithm whose every seed was trained otherwise is named there, not among those without a run
-    only_off = {"mddpg": [(0, tmp_path / "x", ["hidden"])], "dqn": [(0, tmp_path / "y", ["steps"])]}
+    # an algorithm whose every seed was trained otherwise is named there, not among those without a run; shipped
+    # logs are named by their folder, and need no moving
+    only_off = {"mddpg": [make_results.OffRecipe(0, tmp_path / "x", ["hidden"], False)],
+                "dqn": [make_results.OffRecipe(0, tmp_path / "y", ["steps"], False)]}
     lines = make_results.lacking_lines("deck1", "reward", {"ddpg": runs["ddpg"]}, ("mddpg", "ddpg", "dqn", "a2c"),
                                        100, only_off)
-    assert len(lines) == 2 and "mddpg seed 0 (other hidden;" in lines[0] and "dqn seed 0 (other steps;" in lines[0]
+    assert len(lines) == 2
+    assert "mddpg seed 0 (other hidden; in `deck_sim/trained/logs/deck1_mddpg-reward`)" in lines[0]
+    assert "dqn seed 0 (other steps; in `deck_sim/trained/logs/deck1_dqn-reward`)" in lines[0]
+    assert lines[0].endswith("--algos mddpg-reward,dqn-reward --redo` trains them with the recipe as it is.")
     assert "- deck1: no run of `deck1-reward` (a2c) with a held-out record" in lines[1]
-    # the shipped logs, trained with the recipe as it is, stand in for the seeds whose run folder differs
-    monkeypatch.setattr(make_results, "shipped_logs", lambda agent, scene: shipped.get(agent, []))
-    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
-    assert [r["seed"] for r in runs["mddpg"]] == [0, 1, 2] and [r["seed"] for r in runs["ddpg"]] == [0, 1, 2]
-    assert runs["mddpg"][2]["success"] != 0.1 and runs["ddpg"][1]["success"] != 0.8
-    assert make_results.off_recipe_runs("deck1", "reward", tmp_path, runs) == {}
+    # logs shipped from runs of the recipe as it is stand in for the seeds whose run folder differs
+    for algo, seed, success in (("mddpg", 2, 0.95), ("ddpg", 1, 0.85)):
+        _run(tmp_path / "shipped", algo, seed, success, 180.0)
+        shipped[f"{algo}-reward"] = [(tmp_path / "shipped" / f"deck1-reward-{algo}-seed{seed}", seed)]
+    runs = make_results.reward_runs("deck1", runs_dir, 100, workers=1)
+    assert [(r["seed"], r["success"]) for r in runs["mddpg"]] == [(0, 0.9), (1, 0.9), (2, 0.95)]
+    assert [(r["seed"], r["success"]) for r in runs["ddpg"]] == [(0, 0.8), (1, 0.85)]
+    assert make_results.off_recipe_runs("deck1", "reward", runs_dir, runs) == {}
 
 
 def test_a_shipped_agent_whose_runs_the_recipe_no_longer_gives_says_so_in_its_provenance(tmp_path, make_results,

@@ -186,7 +186,9 @@ def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) 
     """The fields in which the run recorded in ``run_dir/config.json`` differs from ``plan`` (what ``Recipe.run``
     returns: MDDPG's or DDPG's ``TrainConfig``, or DQN's or A2C's ``train_baseline`` keywords), sorted; empty if
     the run is that plan's. A ``config.json`` that cannot be read as the plan's kind of config gives
-    ``["config.json"]``."""
+    ``["config.json"]``. A DQN or A2C config of the first format (``steps`` without ``total_steps``) did not record
+    its evaluation and logging fields (``FIRST_FORMAT_UNRECORDED``), which says nothing of what the run used: they
+    are not compared."""
     from training.baseline_config import baseline_config
     from training.baselines import saved_baseline_config
     from training.checkpoints import CheckpointError
@@ -200,33 +202,32 @@ def config_differences(run_dir: str | Path, plan: TrainConfig | dict[str, Any]) 
                 fields["total_steps"] = plan["steps"]
             want = baseline_config(plan["algo"], **fields).to_dict()
             have = saved_baseline_config(run_dir).to_dict()
+            saved = json.loads((Path(run_dir) / "config.json").read_text())
+            if "steps" in saved and "total_steps" not in saved:  # (the first format)
+                for name in FIRST_FORMAT_UNRECORDED:
+                    if name not in saved and name not in saved.get("sb3", {}):
+                        want.pop(name, None)
+                        have.pop(name, None)
     except (ConfigError, CheckpointError):
         return ["config.json"]
     return differing_fields(want, have)
+
+
+FIRST_FORMAT_UNRECORDED = ("eval_every", "eval_episodes", "eval_seed", "log_every")
+"""The fields of a DQN or A2C run that the first format of its ``config.json`` did not record."""
 
 
 def shipped_differences(scene: str, agent: str) -> list[str]:
     """The fields in which the runs behind the shipped ``agent`` of ``scene`` (their logs beside the actor,
     ``deck_sim.policies.shipped_logs``) differ from what the agent's recipe gives each seed now
     (``config_differences``), sorted; empty where every shipped run is the recipe's or no logs are shipped. A
-    recipe changed after its agent shipped makes it non-empty until ``scripts/train_shipped.py`` trains again.
-    A DQN or A2C run counts only the fields its ``config.json`` records: the first format of that file left some
-    out (the evaluation episodes), which says nothing of what the run used."""
+    recipe changed after its agent shipped makes it non-empty until ``scripts/train_shipped.py`` trains again."""
     from deck_sim.policies import shipped_logs
 
     recipe = load_recipe(agents.recipe_name(agent, scene))
     algo = agents.training_algo(agent)
-    found = set()
-    for folder, seed in shipped_logs(agent, scene):
-        if seed is None:
-            continue
-        differ = config_differences(folder, recipe.run(algo, seed))
-        if _trainer(algo) == "sb3" and differ != ["config.json"]:
-            saved = json.loads((Path(folder) / "config.json").read_text())
-            recorded = {*saved, *saved.get("sb3", {}), *(["total_steps"] if "steps" in saved else [])}
-            differ = [f for f in differ if f in recorded]
-        found.update(differ)
-    return sorted(found)
+    return sorted({f for folder, seed in shipped_logs(agent, scene) if seed is not None
+                   for f in config_differences(folder, recipe.run(algo, seed))})
 
 
 NOTES = frozenset({"extra"})
