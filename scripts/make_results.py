@@ -58,7 +58,7 @@ from deck_sim.policies import TRAINED_DIR, load_actor, seeds_text, shipped_log_d
 from deck_sim.policies.regimes import REGIMES, actor_regime, config_regime, regime_text  # noqa: E402
 from deck_sim.progress import progress  # noqa: E402
 from deck_sim.rollout import git_commit  # noqa: E402
-from training.recipes import config_differences, load_recipe, recipe_names, shipped_differences  # noqa: E402
+from training.recipes import config_differences, load_recipe, recipe_names, shipped_drift  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
@@ -126,20 +126,12 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
                 seeds = fig.get("seeds") or [fig.get("seed", "?")]
                 runs = seeds_text(seeds, fig.get("trained_seeds"))
                 learnt = shipped_regime(scene, agent) or "not recorded"
-                if earlier := earlier_recipe(scene, agent):
-                    learnt += f" ({earlier})"
+                if drift := shipped_drift(scene, agent):
+                    learnt += f" ({drift})"
                 lines.append(f"| {agent} | {scene} | {learnt} | {runs} | {steps} | {wall} | {episodes} |")
             else:
                 lines.append(f"| {agent} | {scene} | - | none (no training) | - | - | {episodes} |")
     return lines
-
-
-def earlier_recipe(scene: str, agent: str) -> str | None:
-    """Where the runs behind the shipped ``agent`` of ``scene`` were trained with another configuration than its
-    recipe gives now (``training.recipes.shipped_differences``), a phrase naming the recipe and the
-    fields that differ; None where every shipped run is the recipe's or no logs are shipped."""
-    fields = shipped_differences(scene, agent)
-    return f"trained with other {', '.join(fields)} than `{recipe_name(agent, scene)}` gives now" if fields else None
 
 
 def shipped_regime(scene: str, agent: str) -> str | None:
@@ -366,6 +358,11 @@ def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_st
     return lines
 
 
+def _shown(path: Path) -> str:
+    """``path`` as the docs show it: relative to the repository where it lies inside it."""
+    return str(path.relative_to(ROOT) if path.is_absolute() and path.is_relative_to(ROOT) else path)
+
+
 def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: tuple[str, ...],
                   episodes: int, off: dict[str, list[OffRecipe]] | None = None) -> list[str]:
     """Lines naming the ``algos`` of ``scene``'s recipe of ``regime`` that have no run in ``found`` (``{algo:
@@ -376,15 +373,12 @@ def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: 
     off = {a: seeds for a, seeds in (off or {}).items() if a in algos}
     lines = []
     if off:
-        def shown(folder: Path) -> str:
-            return str(folder.relative_to(ROOT) if folder.is_absolute() and folder.is_relative_to(ROOT) else folder)
-
         each, move = [], []
         for algo, seeds in off.items():
             fields = sorted({f for run in seeds for f in run.fields})
-            where = sorted({shown(run.folder.parent) if run.run_folder else
-                            shown(shipped_log_dir(by_algo.get(algo, algo), scene)) for run in seeds})
-            move += [f"`{shown(run.folder)}`" for run in seeds if run.run_folder]
+            where = sorted({_shown(run.folder.parent) if run.run_folder else
+                            _shown(shipped_log_dir(by_algo.get(algo, algo), scene)) for run in seeds})
+            move += [f"`{_shown(run.folder)}`" for run in seeds if run.run_folder]
             each.append(f"{algo} seed{'s' if len(seeds) > 1 else ''} {', '.join(str(run.seed) for run in seeds)} "
                         f"(other {', '.join(fields)}; in {', '.join(f'`{w}`' for w in where)})")
         if all(a in by_algo for a in off):
@@ -658,13 +652,13 @@ def main() -> None:
                 with open(run / "eval.csv") as f:
                     episodes = sorted({r["episodes"] for r in csv.DictReader(f)})
                 stream = f"the seed-{c['eval_seed']} stream" if "eval_seed" in c else "its trainer's evaluation stream"
-                shown = run.relative_to(ROOT) if run.is_absolute() and run.is_relative_to(ROOT) else run
                 others = sorted(d.name for d in run.glob("seed*") if (d / "eval.csv").exists())
                 kin = ("the seeds it was chosen from" if AGENT_INFO[agent].trainer == "sb3"
                        else "the shipped ensemble's other runs")
                 also = (f" (seed {c.get('seed', 0)}'s run; {kin}: "
                         f"{', '.join(f'`{o}/eval.csv`' for o in others)})") if others else ""
-                how.append(f"{agent}: `{shown}/eval.csv`{also}, {'/'.join(episodes)} episodes of {stream} per point")
+                how.append(f"{agent}: `{_shown(run)}/eval.csv`{also}, {'/'.join(episodes)} episodes of {stream} "
+                           "per point")
             curve_lines.append(
                 f"*{scene}: held-out average reward and success against training steps ({'; '.join(how)}).*"
             )

@@ -103,7 +103,7 @@ from training.recipes import (  # noqa: E402
     differing_fields,
     load_recipe,
     recipe_names,
-    shipped_differences,
+    shipped_drift,
 )
 
 HELD_OUT_SEED = 1000
@@ -669,8 +669,8 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
     ]
     for scene, algo, r in shipped_records(report):
         recipe = f"`training/recipes/{recipe_name(algo, scene)}.toml` [{'ddpg' if algo in DDPG_ALGOS else 'sb3'}]"
-        if differ := shipped_differences(scene, algo):  # (the recipe changed after this file shipped)
-            recipe += f", trained with other {', '.join(differ)} than it gives now"
+        if drift := shipped_drift(scene, algo):  # (the recipe changed after this file shipped)
+            recipe += f" ({drift})"
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
         members = meta.get("members") or []
@@ -716,8 +716,8 @@ def project_table(report: dict[str, dict[str, dict]]) -> list[str]:
     for scene, algo, r in shipped_records(report):
         runs = seeds_text(r.get("seeds", []), r.get("trained_seeds"))
         learnt = learnt_from(scene, algo)
-        if differ := shipped_differences(scene, algo):
-            learnt += f" (trained with other {', '.join(differ)} than `{recipe_name(algo, scene)}` gives now)"
+        if drift := shipped_drift(scene, algo):
+            learnt += f" ({drift})"
         lines.append(
             f"| {scene} | {LABELS.get(algo, algo)} | {learnt} | {runs} | "
             f"{100 * r['success']:.1f} % | "

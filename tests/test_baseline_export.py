@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import deck_sim
-from deck_sim.agents import AGENTS, recipe_name
+from deck_sim.agents import AGENTS
 from deck_sim.policies import (
     EnsemblePolicy,
     LearnedPolicy,
@@ -24,7 +24,7 @@ from deck_sim.policies import (
     shipped_logs,
     write_actor_file,
 )
-from training.recipes import shipped_differences
+from training.recipes import shipped_drift
 
 SHORT = {"dqn": {"learning_starts": 20, "buffer_size": 1000}, "a2c": {"n_steps": 8}}
 
@@ -197,9 +197,8 @@ def test_project_readme_table_matches_results_json():
         agent = AGENTS[labels[label]]
         learnt, _, note = learnt.partition(" (")  # (a file shipped before its recipe changed says so)
         assert learnt == ("reward" if agent.trainer == "sb3" else agent.recipe or "oracle-teacher")
-        differ = shipped_differences(scene, labels[label])
-        assert note == (f"trained with other {', '.join(differ)} than `{recipe_name(labels[label], scene)}` gives "
-                        "now)" if differ else ""), (scene, label)
+        drift = shipped_drift(scene, labels[label])
+        assert note == (f"{drift})" if drift else ""), (scene, label)
         assert runs == seeds_text(record["seeds"], record.get("trained_seeds")), (scene, label)
         assert runs.startswith(f"{len(record['seeds'])} (seed")
         for cell, key in ((success, "success"), (collision, "collision"), (timeout, "timeout"), (off, "off_surface")):

@@ -369,11 +369,11 @@ def test_a_shipped_agent_whose_runs_the_recipe_no_longer_gives_says_so_in_its_pr
     logs = [(shutil.copytree(folder, tmp_path / f"seed{seed}"), seed)
             for folder, seed in make_results.shipped_logs("mddpg-reward", "deck1")]
     monkeypatch.setattr(deck_sim.policies, "shipped_logs", lambda agent, scene: logs)
-    assert make_results.earlier_recipe("deck1", "mddpg-reward") is None
+    assert make_results.shipped_drift("deck1", "mddpg-reward") is None
     config = json.loads((logs[1][0] / "config.json").read_text())
     config["scene_overrides"] = {"episode__near_steps": 4}
     (logs[1][0] / "config.json").write_text(json.dumps(config))
-    assert make_results.earlier_recipe("deck1", "mddpg-reward") == \
+    assert make_results.shipped_drift("deck1", "mddpg-reward") == \
         "trained with other scene_overrides than `deck1-reward` gives now"
     row = next(x for x in make_results.provenance(["deck1"], ["mddpg-reward"], 100, {"deck1": []})
                if x.startswith("| mddpg-reward |"))

@@ -230,6 +230,14 @@ def shipped_differences(scene: str, agent: str) -> list[str]:
                    for f in config_differences(folder, recipe.run(algo, seed))})
 
 
+def shipped_drift(scene: str, agent: str) -> str | None:
+    """``shipped_differences`` as the phrase every table that lists shipped agents puts beside one ("trained with
+    other scene_overrides than `deck2-reward` gives now"); None where there is nothing to say."""
+    fields = shipped_differences(scene, agent)
+    return (f"trained with other {', '.join(fields)} than `{agents.recipe_name(agent, scene)}` gives now"
+            if fields else None)
+
+
 NOTES = frozenset({"extra"})
 """The config keys that hold notes stored with a run (the recipe's or preset's name), which the trainer never
 reads: two runs that differ in them alone are the same training."""
