@@ -264,6 +264,8 @@ def test_left_out_movers_read_as_beyond_the_near_field():
     fills = mover_pad_fills(cfg)
     near = 4 * 0.75  # the square's reach
     assert fills == {"dynamic_near": pytest.approx(near / np.sqrt(2))}
+    both = make_config(scene="square", scene_overrides={"episode__near_steps": 4, "episode__predicted_near": True})
+    assert mover_pad_fills(both) == {"predicted_near": pytest.approx(near / np.sqrt(2))}
     assert mover_pad_fills(make_config(scene_overrides={"episode__predicted_frame": "mover"})) == {"predicted": 0.0}
     assert mover_pad_fills(make_config()) == {}
     full = ObservationLayout({"target": (2,), "dynamic_obstacles": (3, 2), "dynamic_near": (3, 2)})

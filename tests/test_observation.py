@@ -14,6 +14,7 @@ from deck_sim.tasks.observation import (
     ObservationConfig,
     build_observation,
     closest_approach,
+    near_forecast,
     observation_shapes,
 )
 
@@ -77,6 +78,7 @@ def test_every_option_adds_its_keys_with_the_announced_shapes_in_order():
         route_steps=2,
         agent_frame=True,
         approach_dt=0.5,
+        predicted_near=True,
     )
     obs = observe(cfg, route=np.array([[2.0, 3.0], [3.0, 4.0]]))
     shapes = observation_shapes(cfg, 3, 3)
@@ -205,3 +207,43 @@ def test_a_mover_driving_at_a_standing_agent_is_nearest_at_the_end_of_its_foreca
     assert t0 == 0.0 and d0 == pytest.approx(gap)
     t2, d2 = closest_approach(now[None], np.repeat(now[None, None], steps, 1), -speed * towards, 0.5)[0]
     assert t2 == pytest.approx(t) and d2 == pytest.approx(d)
+
+
+def test_the_near_forecast_carries_each_movers_nearest_point_along_its_forecast_clipped_to_the_field():
+    obs = observe(config(near=5.0, near_obstacles=True, predicted_near=True))
+    assert obs["predicted_near"].shape == (3, 2, 2)
+    # nearest first, as ``dynamic_obstacles``: the disc of radius 0.3 at 2 m east, nearest point 1.7 m east; its
+    # forecast 1 and 2 m further east (2.7 and 3.7 m, inside the 5 m field)
+    np.testing.assert_allclose(obs["predicted_near"][0], [[2.7, 0.0], [3.7, 0.0]], rtol=1e-12)
+    # the box 8 m south (half-width 1 m: nearest point 7 m south) moved 1 and 2 m east, then clipped to 5 m
+    for k, east in enumerate((1.0, 2.0)):
+        v = np.array([east, -7.0])
+        np.testing.assert_allclose(obs["predicted_near"][1, k], v * 5.0 / np.hypot(*v), rtol=1e-12)
+    assert np.all(np.hypot(*np.moveaxis(obs["predicted_near"], -1, 0)) <= 5.0 + 1e-12)
+    # the same rows without the near obstacles; absent without a near field or a forecast
+    alone = observe(config(near=5.0, predicted_near=True))
+    np.testing.assert_array_equal(alone["predicted_near"], obs["predicted_near"])
+    assert "dynamic_near" not in alone
+    assert "predicted_near" not in observe(config(predicted_near=True))
+    assert "predicted_near" not in observe(config(horizon=0, near=5.0, predicted_near=True))
+
+
+@given(
+    nearest=st.tuples(st.floats(-30, 30), st.floats(-30, 30)),
+    step=st.tuples(st.floats(-3, 3), st.floats(-3, 3)),
+    near=st.floats(1.0, 20.0),
+    steps=st.integers(1, 6),
+)
+def test_a_standing_forecast_repeats_the_near_point_and_a_moving_one_keeps_its_direction(nearest, step, near, steps):
+    nearest, step = np.array([nearest]), np.array(step)
+    now = np.array([[5.0, -2.0]])
+    standing = near_forecast(nearest, now, np.repeat(now[:, None], steps, 1), near)
+    clipped = nearest * min(1.0, near / max(float(np.hypot(*nearest[0])), 1e-300))
+    np.testing.assert_allclose(standing[0], np.repeat(clipped, steps, 0), rtol=1e-9, atol=1e-12)
+    forecast = now[:, None] + np.arange(1, steps + 1)[:, None] * step
+    moving = near_forecast(nearest, now, forecast, near)[0]
+    unclipped = nearest[0] + np.arange(1, steps + 1)[:, None] * step
+    length = np.hypot(unclipped[:, 0], unclipped[:, 1])
+    np.testing.assert_allclose(np.hypot(moving[:, 0], moving[:, 1]), np.minimum(length, near), rtol=1e-9, atol=1e-12)
+    # the direction is kept: each row is a non-negative multiple of the unclipped vector
+    assert np.all(np.einsum("ij,ij->i", moving, unclipped) >= -1e-9)

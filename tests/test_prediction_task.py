@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from dm_control import composer
@@ -157,3 +159,31 @@ def test_the_closest_approach_key_is_read_from_the_forecast_the_agent_observes_i
     np.testing.assert_allclose(obs["predicted_approach"], world[0]["predicted_approach"], rtol=1e-9, atol=1e-9)
     with pytest.raises(SceneSpecError, match=r"predicted_approach: is read from the forecast: it needs a predictor"):
         deck_sim.load("deck1", seed=3, episode__predictor="none", episode__predicted_approach=True)
+
+
+def test_the_near_forecast_is_the_observed_forecast_at_the_near_fields_scale_and_no_agent_without_one_sees_it():
+    """``episode.predicted_near``: each mover's nearest point carried along its MPC forecast and clipped to the near
+    field, as the observation's own ``dynamic_nearest``, ``predicted`` and ``dynamic_obstacles`` give it; with a
+    forecast of standing movers it repeats ``dynamic_near``; the same in the agent's axes turned; refused without
+    a predictor; a DDPG run's observation leaves it out."""
+    from deck_sim.geometry import clip_length, world_to_agent
+    from deck_sim.scenes import SceneSpecError
+
+    near = {"episode__near_steps": 4, "episode__near_obstacles": True, "episode__predicted_near": True}
+    env = deck_sim.load("deck1", seed=3, episode__predictor="mpc", episode__obstacle_shape=True, **near)
+    world = [env.reset().observation] + [env.step(np.array([0.6, 0.0])).observation for _ in range(12)]
+    field = 4 * 3.0  # deck 1's reach, 3 m
+    for obs in world:
+        assert obs["predicted_near"].shape == (5, 10, 2)
+        carried = obs["dynamic_nearest"][:, None] + obs["predicted"] - obs["dynamic_obstacles"][:, None]
+        np.testing.assert_allclose(obs["predicted_near"], clip_length(carried, field), rtol=1e-9, atol=1e-9)
+    assert any(np.abs(o["predicted_near"] - o["dynamic_near"][:, None]).max() > 0.1 for o in world)  # (they move)
+    still = deck_sim.load("deck1", seed=3, episode__predictor="stationary", **near)
+    obs = still.reset().observation
+    np.testing.assert_allclose(obs["predicted_near"], np.repeat(obs["dynamic_near"][:, None], 10, 1), atol=1e-9)
+    ego = deck_sim.load("deck1", seed=3, episode__predictor="mpc", episode__frame="agent", **near)
+    obs = ego.reset().observation
+    yaw = math.atan2(obs["heading"][1], obs["heading"][0])
+    np.testing.assert_allclose(obs["predicted_near"], world_to_agent(world[0]["predicted_near"], yaw), atol=1e-9)
+    with pytest.raises(SceneSpecError, match=r"predicted_near: is read from the forecast: it needs a predictor"):
+        deck_sim.load("deck1", seed=3, episode__predictor="none", **near)

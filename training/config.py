@@ -627,6 +627,7 @@ ADDITIONS: dict[str, dict[str, Any]] = {
     "meanq": {"twin_min_weight": 0.5},
     "lookahead": {"scene_overrides": {"reward__lookahead_steps": 6}},
     "approach": {"scene_overrides": {"episode__predicted_approach": True}},
+    "nearforecast": {"scene_overrides": {"episode__predicted_near": True}},
     "layernorm": {"critic_layer_norm": True},
     "preact": {"actor_preact_weight": 1e-3},
     "utd": {"updates_per_step": 1.0},
@@ -664,7 +665,9 @@ critic, ``critic_layer_norm``; ``preact``: a penalty of 1e-3 on the actor's squa
 ``updates_per_step = 1``; ``lookahead``: the reward's repulsion term reads each mover's
 closest approach over the next 6 steps of the MPC forecast, scene field ``reward.lookahead_steps``, for DDPG and
 MDDPG alike; ``approach``: each mover's closest approach on its forecast, time and distance, in MDDPG's
-observation, ``episode.predicted_approach``; ``wait``: exploration that now and then stops the aircraft for 1-10
+observation, ``episode.predicted_approach``; ``nearforecast``: the forecast at the near field's scale,
+``episode.predicted_near`` (with ``close``, which gives the near field: ``reward-mddpg-with-close+nearforecast``);
+``wait``: exploration that now and then stops the aircraft for 1-10
 steps whatever the actor wants (2 % chance per step of starting such a hold, ``hold_prob``, ``hold_action =
 "stop"``); ``ez``: the same holds with one uniform random action each (temporally extended epsilon-greedy);
 ``curriculum``: for the first 10 % of the run's steps 2 movers and targets at most 100 m away, until 25 % 5 movers

@@ -31,9 +31,9 @@ FAR = 1000.0
 """Metres: the relative position (x and y) that stands for a mover left out by a curriculum stage."""
 MOVER_KEYS = (
     "dynamic_obstacles", "predicted", "predicted_approach", "dynamic_nearest", "dynamic_heading", "dynamic_size",
-    "dynamic_near",
+    "dynamic_near", "predicted_near",
 )
-FORECAST_KEYS = ("predicted", "predicted_approach")
+FORECAST_KEYS = ("predicted", "predicted_approach", "predicted_near")
 """Observation keys read from the forecast: what an agent without prediction does not see."""
 PAD: dict[str, float | tuple[float, ...]] = {
     "dynamic_heading": 0.0, "dynamic_size": 0.0, "predicted_approach": (0.0, FAR * math.sqrt(2.0)),
@@ -44,15 +44,18 @@ run's own); a tuple fills each column (``predicted_approach``: closest now, as f
 
 def mover_pad_fills(config: TrainConfig) -> dict[str, float]:
     """The fills of a run's left-out movers that depend on its scene: 0 for ``predicted`` when it holds each
-    mover's own displacement (``episode.predicted_frame = "mover"``), and for ``dynamic_near`` the value whose
-    (x, y) row is as long as the near field (a mover beyond the field reads as a vector of the field's length, as
-    every far one does; ``FAR`` would break the clip and swamp the set's pooled statistics)."""
+    mover's own displacement (``episode.predicted_frame = "mover"``), and for ``dynamic_near`` and ``predicted_near``
+    the value whose (x, y) row is as long as the near field (a mover beyond the field reads as a vector of the
+    field's length, as every far one does; ``FAR`` would break the clip and swamp the set's pooled statistics)."""
     spec = load_scene(config.scene, **config.scene_overrides)
     fills: dict[str, float] = {}
     if spec.episode.predicted_frame == "mover":
         fills["predicted"] = 0.0
-    if spec.episode.near_obstacles:  # (the scene's validation ensures near_steps > 0)
-        fills["dynamic_near"] = spec.episode.near_steps * spec.agent.reach / math.sqrt(2.0)
+    edge = spec.episode.near_steps * spec.agent.reach / math.sqrt(2.0)  # (validation: near_steps > 0 for both)
+    if spec.episode.near_obstacles:
+        fills["dynamic_near"] = edge
+    if spec.episode.predicted_near:
+        fills["predicted_near"] = edge
     return fills
 
 

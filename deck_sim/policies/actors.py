@@ -39,7 +39,7 @@ then the context]; the head's input is [the context; then each set's pooled feat
 OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
     "movers": (
         "dynamic_obstacles", "predicted", "predicted_approach", "dynamic_size", "dynamic_nearest", "dynamic_heading",
-        "dynamic_near",
+        "dynamic_near", "predicted_near",
     ),
     "statics": ("static_obstacles", "static_nearest", "static_near"),
 }
@@ -233,7 +233,8 @@ class LearnedPolicy:
         ``episode__mover_size`` for one trained on the movers' sizes, ``episode__static_size`` for one trained on
         the static obstacles' footprints, ``episode__predicted_approach`` for one trained on its forecast's
         closest approaches, ``episode__near_obstacles`` for one trained
-        on the obstacles within its near field, the ``episode__near_steps`` and
+        on the obstacles within its near field, ``episode__predicted_near`` for one trained on its forecast at that
+        field's scale, the ``episode__near_steps`` and
         ``episode__route_steps`` it was trained with, and every field of ``scenes.POLICY_EPISODE_FIELDS`` its
         training overrode (the observation's keys and shapes cannot tell those)."""
         return self._read_scene_overrides()
@@ -251,6 +252,8 @@ class LearnedPolicy:
             out["episode__near_obstacles"] = True
         if "predicted_approach" in self.keys:
             out["episode__predicted_approach"] = True
+        if "predicted_near" in self.keys:
+            out["episode__predicted_near"] = True
         trained = dict(self.meta.get("scene_overrides") or {})
         for field in POLICY_EPISODE_FIELDS:
             if trained.get(f"episode__{field}") is not None:

@@ -291,6 +291,14 @@ class EpisodeSpec:
     its set at once, so on the square the centres of 28 statics spread over 100 m leave the metre between the
     agent and a 1.2 m standing group a few hundredths wide; these rows keep it a metre. Off by default (the
     paper's observation)."""
+    predicted_near: bool = False
+    """Also observe the forecast at the near field's scale (``near_steps``, which must then be > 0; needs a
+    predictor): ``predicted_near`` (n, N, 2), in the order of ``dynamic_obstacles``, the nearest point of each
+    mover's footprint now moved by its predicted displacement at each of the N forecast steps, minus the agent's
+    position now, its length clipped to ``near_steps * agent.reach`` metres (``tasks.observation.near_forecast``).
+    ``predicted`` spans the whole surface, so after normalisation a mover's next few metres are a small difference
+    between large inputs; these rows hold them at the scale of ``dynamic_near``. Off by default (the paper's
+    observation)."""
     route_steps: int = 0
     """Also observe the way to the target around the static obstacles: ``route`` (``route_steps``, 2), the points
     ``k * agent.reach`` metres along the shortest path (``geometry.VisibilityGraph``, for a disc of the agent's

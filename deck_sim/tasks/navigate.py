@@ -210,6 +210,7 @@ class Navigate(composer.Task):
             mover_size=self._dyn_half + self._dyn_radius[:, None] if spec.episode.mover_size else None,
             near=spec.episode.near_steps * spec.agent.reach,  # metres of the near field; 0: not observed
             near_obstacles=spec.episode.near_obstacles,
+            predicted_near=spec.episode.predicted_near,
             route_steps=self._route_steps,
             static_size=spec.episode.static_size,
             agent_frame=self._agent_frame,

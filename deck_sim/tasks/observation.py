@@ -6,7 +6,9 @@ Observation (all relative vectors in the world frame, metres, or in the agent's 
     the last of m = 15 + 1) minus agent; ``dynamic_obstacles`` (n, 2) movers now minus agent; ``predicted``
     (n, N, 2) predicted mover positions minus agent (absent when N = 0; minus each mover's position now with
     ``episode.predicted_frame = "mover"``; ``predicted_approach`` (n, 2) with ``episode.predicted_approach``, each
-    mover's closest approach on its forecast, ``closest_approach``); ``position`` (2) the agent's own
+    mover's closest approach on its forecast, ``closest_approach``; ``predicted_near`` (n, N, 2) with
+    ``episode.predicted_near``, the forecast at the near field's scale, ``near_forecast``); ``position`` (2) the
+    agent's own
     position (where the deck edges are); ``velocity`` (2) m/s; ``heading`` (2) cos and sin of yaw. Options of
     the scene's ``[episode]`` add the obstacles' shapes (``obstacle_shape``), the movers' sizes (``mover_size``),
     the static obstacles' footprints (``static_size``: ``static_size`` and ``static_heading``),
@@ -38,6 +40,7 @@ TURNED_KEYS = (
     "target_near",
     "static_near",
     "dynamic_near",
+    "predicted_near",
     "route",
     "velocity",
 )
@@ -63,6 +66,7 @@ class ObservationConfig:
         near: radius of the near field, metres (``episode.near_steps * agent.reach``); 0 leaves ``target_near``
             and ``edge_near`` out.
         near_obstacles: with ``near`` > 0, observe ``static_near`` and ``dynamic_near``.
+        predicted_near: with ``near`` > 0 and ``horizon`` > 0, observe ``predicted_near`` (``near_forecast``).
         route_steps: points of ``route``; 0 leaves it out.
         static_size: observe every static obstacle's footprint: ``static_size`` (m, 2), its half-length and
             half-width, rounding radius included, metres, and ``static_heading`` (m, 2), the cos and sin of its
@@ -80,6 +84,7 @@ class ObservationConfig:
     mover_size: np.ndarray | None = None
     near: float = 0.0
     near_obstacles: bool = False
+    predicted_near: bool = False
     route_steps: int = 0
     static_size: bool = False
     agent_frame: bool = False
@@ -102,6 +107,21 @@ def closest_approach(now: np.ndarray, forecast: np.ndarray, velocity: np.ndarray
     return np.stack([steps[first], dist[np.arange(len(dist)), first]], axis=1)
 
 
+def near_forecast(nearest: np.ndarray, now: np.ndarray, forecast: np.ndarray, near: float) -> np.ndarray:
+    """Each mover's forecast at the near field's scale: (n, N, 2), the nearest point of its footprint now, moved
+    by its predicted displacement at each forecast step, with its length clipped to ``near`` metres; relative to
+    the agent's position now (the frame of ``predicted``). The footprint is carried without turning: over a
+    forecast of a few seconds a turning mover's nearest point is off by at most its turn times its half-length.
+
+    Args:
+        nearest: (n, 2) the nearest point of each mover's footprint minus the agent's position, metres.
+        now: (n, 2) the movers' positions now, metres (any origin shared with ``forecast``).
+        forecast: (n, N, 2) their forecast positions, metres, same origin as ``now``.
+        near: radius of the near field, metres (> 0).
+    """
+    return clip_length(nearest[:, None] + (forecast - now[:, None]), near)
+
+
 def observation_shapes(config: ObservationConfig, n_static: int, n_movers: int) -> dict[str, tuple[int, ...]]:
     """Shape of every observation key for ``n_static`` static obstacles and ``n_movers`` movers, in order."""
     m, n = n_static, n_movers
@@ -120,6 +140,8 @@ def observation_shapes(config: ObservationConfig, n_static: int, n_movers: int) 
         shapes.update({"target_near": (2,), "edge_near": (4,)})
         if config.near_obstacles:
             shapes.update({"static_near": (m, 2), "dynamic_near": (n, 2)})
+        if config.predicted_near and config.horizon > 0:
+            shapes["predicted_near"] = (n, config.horizon, 2)
     if config.route_steps > 0:
         shapes["route"] = (config.route_steps, 2)
     shapes.update({"position": (2,), "velocity": (2,), "heading": (2,)})
@@ -172,7 +194,8 @@ def build_observation(
             )
     near, near_obstacles = config.near, config.near_obstacles
     static_nearest = dynamic_nearest = None
-    if config.obstacle_shape or (near > 0 and near_obstacles):
+    forecast_near = config.predicted_near and near > 0 and config.horizon > 0
+    if config.obstacle_shape or (near > 0 and near_obstacles) or forecast_near:
         static_nearest = statics.nearest_points(agent_xy)[order_s] - agent_xy
         mover_fp = Footprints(mover_xy, config.mover_half, mover_yaw, config.mover_radius)
         dynamic_nearest = mover_fp.nearest_points(agent_xy)[order_m] - agent_xy
@@ -196,6 +219,8 @@ def build_observation(
         if near_obstacles and static_nearest is not None and dynamic_nearest is not None:
             obs["static_near"] = clip_length(static_nearest, near)
             obs["dynamic_near"] = clip_length(dynamic_nearest, near)
+        if forecast_near and dynamic_nearest is not None:
+            obs["predicted_near"] = near_forecast(dynamic_nearest, mover_xy[order_m], predicted[order_m], near)
     if config.route_steps > 0:
         obs["route"] = route - agent_xy
     obs["position"] = agent_xy
