@@ -79,7 +79,7 @@ VARIANTS = {
 }
 PLANAR_Y_KEYS = {
     "target", "static_obstacles", "dynamic_obstacles", "predicted", "velocity", "static_nearest",
-    "dynamic_nearest", "target_near", "static_near", "dynamic_near",
+    "dynamic_nearest", "target_near", "static_near", "dynamic_near", "predicted_near",
 }
 
 

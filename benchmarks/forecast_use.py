@@ -4,8 +4,9 @@ other predictors' forecasts of the same shape.
 Each actor file (one actor or an ensemble of them; trained with a predictor, i.e. MDDPG) is evaluated on the same
 ``--episodes`` held-out episodes of its scene (``deck_sim.evaluation``: episode ``i`` reset with seed
 ``DEFAULT_SEED + i``, the episodes of ``docs/results.md`` and their continuation) once per predictor of
-``--predictors``: the environment computes that predictor's forecast into the observation's ``predicted`` rows, and
-the actor reads it as it read its own. Everything else (weights, observation, scene) is the same, so a difference in
+``--predictors``: the environment computes that predictor's forecast into the observation's ``predicted`` rows (and
+the keys read from it, ``predicted_approach`` and ``predicted_near``, where the actor has them), and the actor reads
+it as it read its own. Everything else (weights, observation, scene) is the same, so a difference in
 success is what the forecast's content is worth to that actor:
 
 - ``constant_velocity``: each mover's last velocity held over the horizon (no intent);

@@ -277,6 +277,15 @@ def test_left_out_movers_read_as_beyond_the_near_field():
     np.testing.assert_array_equal(rows[0], [4.0, 5.0])  # the stage's own mover, kept first
     np.testing.assert_allclose(np.linalg.norm(rows[1:], axis=1), near)  # the left-out ones: on the field's edge
     np.testing.assert_array_equal(padded[0, sl["dynamic_obstacles"]][2:], FAR)
+    # the near forecast pads the same way, every forecast step of a left-out mover on the field's edge
+    full_f = ObservationLayout({"dynamic_near": (3, 2), "predicted_near": (3, 2, 2)})
+    stage_f = ObservationLayout({"dynamic_near": (1, 2), "predicted_near": (1, 2, 2)})
+    both = make_config(scene="square", scene_overrides={
+        "episode__near_steps": 4, "episode__near_obstacles": True, "episode__predicted_near": True})
+    out = stage_f.pad_to(np.ones(stage_f.dim), full_f, mover_pad_fills(both)).reshape(-1)
+    forecast = out[full_f.slices()["predicted_near"]].reshape(3, 2, 2)
+    np.testing.assert_array_equal(forecast[0], 1.0)
+    np.testing.assert_allclose(np.linalg.norm(forecast[1:], axis=-1), near)
 
 
 @pytest.mark.slow

@@ -210,22 +210,36 @@ def test_a_mover_driving_at_a_standing_agent_is_nearest_at_the_end_of_its_foreca
 
 
 def test_the_near_forecast_carries_each_movers_nearest_point_along_its_forecast_clipped_to_the_field():
-    obs = observe(config(near=5.0, near_obstacles=True, predicted_near=True))
+    # each mover its own motion: the box 8 m south goes 1 and 2 m east, the disc 2 m east 1 and 2 m north, the
+    # aircraft 20 m north 3 and 6 m west
+    steps = np.array([[[1.0, 0.0]], [[0.0, 1.0]], [[-3.0, 0.0]]]) * np.array([1.0, 2.0])[None, :, None]
+    predicted = MOVER_XY[:, None, :] + steps
+    cfg = config(near=5.0, near_obstacles=True, predicted_near=True)
+    obs = build_observation(
+        cfg, AGENT, 0.3, np.zeros(2), np.array([4.0, 6.0]), STATICS, MOVER_XY, MOVER_YAW, predicted
+    )
     assert obs["predicted_near"].shape == (3, 2, 2)
-    # nearest first, as ``dynamic_obstacles``: the disc of radius 0.3 at 2 m east, nearest point 1.7 m east; its
-    # forecast 1 and 2 m further east (2.7 and 3.7 m, inside the 5 m field)
-    np.testing.assert_allclose(obs["predicted_near"][0], [[2.7, 0.0], [3.7, 0.0]], rtol=1e-12)
+    # nearest first, as ``dynamic_obstacles``: the disc of radius 0.3 at 2 m east, nearest point 1.7 m east,
+    # moving north
+    np.testing.assert_allclose(obs["predicted_near"][0], [[1.7, 1.0], [1.7, 2.0]], rtol=1e-12)
     # the box 8 m south (half-width 1 m: nearest point 7 m south) moved 1 and 2 m east, then clipped to 5 m
     for k, east in enumerate((1.0, 2.0)):
         v = np.array([east, -7.0])
         np.testing.assert_allclose(obs["predicted_near"][1, k], v * 5.0 / np.hypot(*v), rtol=1e-12)
-    assert np.all(np.hypot(*np.moveaxis(obs["predicted_near"], -1, 0)) <= 5.0 + 1e-12)
+    # the aircraft (nearest point 11 m north) moved west, clipped
+    for k, west in enumerate((3.0, 6.0)):
+        v = np.array([-west, 11.0])
+        np.testing.assert_allclose(obs["predicted_near"][2, k], v * 5.0 / np.hypot(*v), rtol=1e-12)
     # the same rows without the near obstacles; absent without a near field or a forecast
-    alone = observe(config(near=5.0, predicted_near=True))
+    alone = build_observation(
+        config(near=5.0, predicted_near=True), AGENT, 0.3, np.zeros(2), np.array([4.0, 6.0]), STATICS, MOVER_XY,
+        MOVER_YAW, predicted,
+    )
     np.testing.assert_array_equal(alone["predicted_near"], obs["predicted_near"])
-    assert "dynamic_near" not in alone
+    assert "dynamic_near" not in alone and "static_near" not in alone
     assert "predicted_near" not in observe(config(predicted_near=True))
     assert "predicted_near" not in observe(config(horizon=0, near=5.0, predicted_near=True))
+    assert "predicted_near" not in observation_shapes(config(horizon=0, near=5.0, predicted_near=True), 3, 3)
 
 
 @given(
@@ -246,4 +260,6 @@ def test_a_standing_forecast_repeats_the_near_point_and_a_moving_one_keeps_its_d
     length = np.hypot(unclipped[:, 0], unclipped[:, 1])
     np.testing.assert_allclose(np.hypot(moving[:, 0], moving[:, 1]), np.minimum(length, near), rtol=1e-9, atol=1e-12)
     # the direction is kept: each row is a non-negative multiple of the unclipped vector
+    cross = moving[:, 0] * unclipped[:, 1] - moving[:, 1] * unclipped[:, 0]
+    np.testing.assert_allclose(cross, 0.0, atol=1e-9 * max(1.0, float(length.max())) ** 2)
     assert np.all(np.einsum("ij,ij->i", moving, unclipped) >= -1e-9)

@@ -80,21 +80,25 @@ def test_the_set_layout_reads_each_obstacle_row_across_its_keys(shapes):
 
 @pytest.mark.parametrize(
     "shape_fields,near_fields",
-    [(False, False), (True, False), (True, True)],
-    ids=["paper-observation", "obstacle-shapes", "shapes-and-near-obstacles"],
+    [(False, False), (True, False), (True, True), (True, "forecast")],
+    ids=["paper-observation", "obstacle-shapes", "shapes-and-near-obstacles", "and-the-near-forecast"],
 )
 def test_each_obstacle_row_gathers_that_obstacles_values_from_every_key_of_its_set(shape_fields, near_fields):
     # an observation whose every entry names its key, obstacle and column, flattened as the policy flattens it;
     # each row of a set must be that obstacle's values, key after key (a check that does not use set_indices' own
     # arithmetic)
     near = {"episode__near_steps": 4, "episode__near_obstacles": True} if near_fields else {}
+    if near_fields == "forecast":
+        near["episode__predicted_near"] = True
     env = make_env("deck1", "mpc", episode__mover_size=True, episode__obstacle_shape=shape_fields, **near)
     shapes = env_layout(env).shapes
     env.close()
     sets = obstacle_sets(shapes)
     if near_fields:
         assert sets["statics"] == ["static_obstacles", "static_nearest", "static_near"]
-        assert sets["movers"][-3:] == ["dynamic_nearest", "dynamic_heading", "dynamic_near"]
+        tail = ["dynamic_nearest", "dynamic_heading", "dynamic_near"]
+        expected = tail + ["predicted_near"] if near_fields == "forecast" else ["dynamic_size"] + tail
+        assert sets["movers"][-4:] == expected
         assert "target_near" in shapes and "edge_near" in shapes  # the near field's own keys: context
     elif shape_fields:
         assert sets["statics"] == ["static_obstacles", "static_nearest"]

@@ -142,6 +142,7 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
         "episode__mover_size": True,
         "episode__near_steps": 2,
         "episode__near_obstacles": True,
+        "episode__predicted_near": True,
         "episode__route_steps": 3,
         "episode__frame": "agent",  # the same keys and shapes as the deck's axes: only the record tells them apart
     }
@@ -160,14 +161,17 @@ def test_an_actor_file_asks_for_the_observation_options_it_was_trained_with(tmp_
     assert "episode__time_limit" not in policy.scene_overrides
     del policy.meta["scene_overrides"]["episode__control_period"], policy.meta["scene_overrides"]["episode__time_limit"]
     assert "dynamic_size" in policy.keys and "target_near" in policy.keys and "edge_near" in policy.keys
-    assert "static_near" in policy.keys and "dynamic_near" in policy.keys
+    assert "static_near" in policy.keys and "dynamic_near" in policy.keys and "predicted_near" in policy.keys
     assert policy.shapes["route"] == (3, 2)
     # an actor whose near field came from its scene file asks for no range; a scene without one is refused
     del policy.meta["scene_overrides"]["episode__near_steps"]
     assert "episode__near_steps" not in policy.scene_overrides
     with pytest.raises(SceneSpecError, match="near_obstacles: needs a near field"):  # its near obstacles need one
-        deck_sim.load("deck1", seed=0, **policy.scene_overrides)
-    overrides = {k: v for k, v in policy.scene_overrides.items() if k != "episode__near_obstacles"}
+        deck_sim.load("deck1", seed=0, **{**policy.scene_overrides, "episode__predicted_near": False})
+    with pytest.raises(SceneSpecError, match="predicted_near: needs a near field"):  # and so does its near forecast
+        deck_sim.load("deck1", seed=0, **{**policy.scene_overrides, "episode__near_obstacles": False})
+    overrides = {k: v for k, v in policy.scene_overrides.items()
+                 if k not in ("episode__near_obstacles", "episode__predicted_near")}
     env = deck_sim.load("deck1", seed=0, **overrides)
     with pytest.raises(PolicyFileError, match="needs observation 'target_near'"):
         policy.flatten(env.reset().observation)

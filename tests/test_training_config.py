@@ -34,8 +34,7 @@ def test_scene_overrides_are_checked_with_the_algorithms_predictor():
     assert arm_config("reward-mddpg-with-close+nearforecast", "deck1", 1000, 0).scene_overrides == {
         "episode__near_steps": 4, "episode__near_obstacles": True, "episode__predicted_near": True
     }
-    with pytest.raises(ConfigError, match=r"predicted_near: holds the forecast at the near field's scale: it needs "
-                                          r"near_steps > 0"):
+    with pytest.raises(ConfigError, match=r"predicted_near: needs a near field: set \[episode\].near_steps > 0"):
         arm_config("reward-mddpg-with-nearforecast", "deck1", 1000, 0)
     with pytest.raises(ConfigError, match=r"predicted_near: is read from the forecast: it needs a predictor"):
         arm_config("reward-ddpg-with-close+nearforecast", "deck1", 1000, 0)

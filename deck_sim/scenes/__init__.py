@@ -270,8 +270,9 @@ class EpisodeSpec:
     """The axes of the observation's vectors and of the action: ``world`` (the deck's axes, the paper's) or
     ``agent`` (x along the agent's heading, y to its left; egocentric). In the agent frame every relative vector
     of the observation (``target``, obstacles, ``predicted``, the shape's nearest points and headings,
-    ``target_near``, ``static_near``, ``dynamic_near``, ``velocity``) is turned by minus the agent's yaw, and an
-    action (x, y) asks for a displacement of ``reach * x`` metres ahead and ``reach * y`` to the left.
+    ``target_near``, ``static_near``, ``dynamic_near``, ``predicted_near``, ``route``, ``velocity``) is turned by
+    minus the agent's yaw, and an action (x, y) asks for a displacement of ``reach * x`` metres ahead and
+    ``reach * y`` to the left.
     ``position``, ``heading`` (the yaw's cos and sin, so the world can still be recovered), ``dynamic_size``,
     ``static_size`` and ``edge_near`` stay as they are.
     The scripted and classical planners, which plan in the world, have their actions turned into this frame

@@ -408,7 +408,7 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
     _check(
         not e.predicted_near or e.near_steps > 0,
         f"{w}.predicted_near",
-        "holds the forecast at the near field's scale: it needs near_steps > 0",
+        "needs a near field: set [episode].near_steps > 0",
     )
     _check(
         not e.near_obstacles or e.near_steps > 0,

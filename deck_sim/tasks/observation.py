@@ -195,8 +195,9 @@ def build_observation(
     near, near_obstacles = config.near, config.near_obstacles
     static_nearest = dynamic_nearest = None
     forecast_near = config.predicted_near and near > 0 and config.horizon > 0
-    if config.obstacle_shape or (near > 0 and near_obstacles) or forecast_near:
+    if config.obstacle_shape or (near > 0 and near_obstacles):
         static_nearest = statics.nearest_points(agent_xy)[order_s] - agent_xy
+    if config.obstacle_shape or (near > 0 and near_obstacles) or forecast_near:
         mover_fp = Footprints(mover_xy, config.mover_half, mover_yaw, config.mover_radius)
         dynamic_nearest = mover_fp.nearest_points(agent_xy)[order_m] - agent_xy
     if config.obstacle_shape:
