@@ -395,16 +395,12 @@ def _validate_episode(spec: SceneSpec, w: str, arena: ArenaFacts) -> None:
         f"{w}.near_steps",
         f"near_steps * agent.reach = {e.near_steps} * {a.reach} m exceeds the arena's diagonal {arena.diagonal:.1f} m",
     )
-    _check(
-        not e.predicted_approach or e.predictor != "none",
-        f"{w}.predicted_approach",
-        "is read from the forecast: it needs a predictor ([episode].predictor is 'none')",
-    )
-    _check(
-        not e.predicted_near or e.predictor != "none",
-        f"{w}.predicted_near",
-        "is read from the forecast: it needs a predictor ([episode].predictor is 'none')",
-    )
+    for name in ("predicted_approach", "predicted_near"):  # the options read from the forecast
+        _check(
+            not getattr(e, name) or e.predictor != "none",
+            f"{w}.{name}",
+            "is read from the forecast: it needs a predictor ([episode].predictor is 'none')",
+        )
     _check(
         not e.predicted_near or e.near_steps > 0,
         f"{w}.predicted_near",

@@ -89,6 +89,11 @@ class ObservationConfig:
     static_size: bool = False
     agent_frame: bool = False
 
+    @property
+    def observes_near_forecast(self) -> bool:
+        """Whether ``predicted_near`` is observed: asked for, with a near field and a forecast."""
+        return self.predicted_near and self.near > 0 and self.horizon > 0
+
 
 def closest_approach(now: np.ndarray, forecast: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
     """Each mover's closest approach to the agent carried on at ``velocity``: (n, 2), the time (seconds from now)
@@ -110,8 +115,8 @@ def closest_approach(now: np.ndarray, forecast: np.ndarray, velocity: np.ndarray
 def near_forecast(nearest: np.ndarray, now: np.ndarray, forecast: np.ndarray, near: float) -> np.ndarray:
     """Each mover's forecast at the near field's scale: (n, N, 2), the nearest point of its footprint now, moved
     by its predicted displacement at each forecast step, with its length clipped to ``near`` metres; relative to
-    the agent's position now (the frame of ``predicted``). The footprint is carried without turning: over a
-    forecast of a few seconds a turning mover's nearest point is off by at most its turn times its half-length.
+    the agent's position now (the frame of ``predicted``). The footprint is carried without turning (the forecast
+    holds positions, not headings), so for a mover that turns within the forecast the point is approximate.
 
     Args:
         nearest: (n, 2) the nearest point of each mover's footprint minus the agent's position, metres.
@@ -140,7 +145,7 @@ def observation_shapes(config: ObservationConfig, n_static: int, n_movers: int) 
         shapes.update({"target_near": (2,), "edge_near": (4,)})
         if config.near_obstacles:
             shapes.update({"static_near": (m, 2), "dynamic_near": (n, 2)})
-        if config.predicted_near and config.horizon > 0:
+        if config.observes_near_forecast:
             shapes["predicted_near"] = (n, config.horizon, 2)
     if config.route_steps > 0:
         shapes["route"] = (config.route_steps, 2)
@@ -194,7 +199,7 @@ def build_observation(
             )
     near, near_obstacles = config.near, config.near_obstacles
     static_nearest = dynamic_nearest = None
-    forecast_near = config.predicted_near and near > 0 and config.horizon > 0
+    forecast_near = config.observes_near_forecast
     if config.obstacle_shape or (near > 0 and near_obstacles):
         static_nearest = statics.nearest_points(agent_xy)[order_s] - agent_xy
     if config.obstacle_shape or (near > 0 and near_obstacles) or forecast_near:
