@@ -440,8 +440,9 @@ def print_differences(summary: dict[str, dict], arms: list[str]) -> None:
             continue
         diff = [a["success_each"][a["seeds"].index(s)] - b["success_each"][b["seeds"].index(s)] for s in both]
         m, lo, hi = mean_interval(diff)
-        spread = (f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points"
-                  if len(both) > 1 else "one seed")
+        spread = ("one seed" if len(both) == 1 else
+                  f"every seed {100 * m:+.1f} points, no spread over seeds to give an interval" if hi - lo < 1e-9 else
+                  f"95 % interval {max(-100.0, 100 * lo):+.1f} to {min(100.0, 100 * hi):+.1f} points")
         if "goal_each" in a and "goal_each" in b:
             _, blo, bhi = paired_bootstrap_interval(
                 np.array([a["goal_each"][a["seeds"].index(s)] for s in both]),

@@ -456,7 +456,8 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True)
     """MDDPG against DDPG (the prediction ablation) and each neighbour of the paper's ranking: the difference of
     held-out success paired by seed, with its 95 % interval over seeds and, where the records keep each episode's
     success, the bootstrap interval over seeds and episodes (``paired_bootstrap_interval``); "ahead" or
-    "behind" only when every interval given excludes zero; and which of MDDPG and DDPG turns more and drives
+    "behind" only when every interval given excludes zero (seeds whose differences are all equal give no interval
+    over seeds, and are said to); and which of MDDPG and DDPG turns more and drives
     further ("as much as", "as long as" where the means are equal at the printed precision; no line where a seed
     has no successful episode to average), against the paper's direction. Only runs that finished their recipe's
     budget are compared (equal budgets); a seed still training is named as left out."""
@@ -480,13 +481,19 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True)
             _, blo, bhi = paired_bootstrap_interval(np.array([ra[s]["goal_each"] for s in both]),
                                                     np.array([rb[s]["goal_each"] for s in both]))
             intervals.append((blo, bhi, f"over {'seeds and ' if len(both) > 1 else ''}episodes, paired by episode"))
-        spread = "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}" for x, y, how in intervals)
-        if len(both) > 1:
-            verdict = f"{a} " + ("ahead" if all(x[0] > 0 for x in intervals) else
-                                 "behind" if all(x[1] < 0 for x in intervals) else "not separated") + \
-                f" (95 % interval {spread})"
+        # (seeds that differ by exactly the same points give an interval of no width: said as such, not as one)
+        real = [i for i in intervals if not (i[2] == "over seeds" and i[1] - i[0] < 1e-9)]  # (float rounding)
+        spread = "; ".join([*(f"every seed {100 * x:+.1f} points, no spread over seeds to give an interval"
+                              for x, y, how in intervals if (x, y, how) not in real),
+                            *(["95 % interval " + "; ".join(f"{100 * x:+.1f} to {100 * y:+.1f} points {how}"
+                                                            for x, y, how in real)] if real else [])])
+        if len(both) > 1 and real:
+            verdict = f"{a} " + ("ahead" if all(x[0] > 0 for x in real) else
+                                 "behind" if all(x[1] < 0 for x in real) else "not separated") + f" ({spread})"
+        elif len(both) > 1:
+            verdict = f"no verdict ({spread})"
         else:  # (one seed's episodes say nothing of the spread between training seeds)
-            verdict = "one seed, no verdict" + (f" (95 % interval {spread})" if intervals else "")
+            verdict = "one seed, no verdict" + (f" ({spread})" if intervals else "")
         ranks = f"; the paper ranks {a} above {b}" if paper else ""
         over = f"seed{'s' if len(both) > 1 else ''} {', '.join(map(str, both))}"
         out.append(f"- {scene}: {a} - {b}, success paired over {over}{left_out}: {100 * m:+.1f} points, "

@@ -258,10 +258,11 @@ def test_the_held_out_difference_adds_the_interval_over_seeds_and_episodes(capsy
                "ddpg": {"seeds": [0, 1, 2], "success_each": [0.80] * 3, "goal_each": [ddpg] * 3}}
     learning.print_differences(summary, ["mddpg", "ddpg"])
     line = capsys.readouterr().out.strip()
-    assert line.startswith("mddpg - ddpg: success +5.0 points, paired over seeds 0, 1, 2 (95 % interval +5.0 to "
-                           "+5.0 points; over seeds and episodes, paired by episode, -")
+    assert line.startswith("mddpg - ddpg: success +5.0 points, paired over seeds 0, 1, 2 (every seed +5.0 points, "
+                           "no spread over seeds to give an interval; over seeds and episodes, paired by episode, -")
     # without per-episode records (the seed-500 stream) only the interval over seeds
     for arm in summary.values():
         del arm["goal_each"]
     learning.print_differences(summary, ["mddpg", "ddpg"])
-    assert capsys.readouterr().out.strip().endswith("(95 % interval +5.0 to +5.0 points)")
+    assert capsys.readouterr().out.strip().endswith(
+        "(every seed +5.0 points, no spread over seeds to give an interval)")

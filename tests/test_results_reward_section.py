@@ -157,8 +157,9 @@ def test_seeds_that_agree_by_chance_do_not_decide_the_ablation_alone(tmp_path, m
         _run(tmp_path, "ddpg", seed, 0.80, 150.0, goal_each=ddpg)
     runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
     lines = [x for x in make_results.ablation_lines("deck1", runs) if "mddpg - ddpg" in x]
-    assert len(lines) == 1 and "+5.0 points, mddpg not separated (95 % interval +5.0 to +5.0 points over seeds; " in \
-        lines[0] and "over seeds and episodes, paired by episode)" in lines[0]
+    assert len(lines) == 1 and ("+5.0 points, mddpg not separated (every seed +5.0 points, no spread over seeds to "
+                                "give an interval; 95 % interval -") in lines[0] and \
+        "over seeds and episodes, paired by episode)" in lines[0]
 
 
 def test_means_equal_at_the_printed_precision_are_called_equal(tmp_path, make_results):
@@ -390,3 +391,17 @@ def test_a_seed_without_a_success_has_no_path_or_turning_and_is_named(make_resul
     assert make_results._interval([250.0, float("nan")], 1.0, ".0f") == \
         "250 (one seed), 1 seed without a success left out"
     assert make_results._interval([0.5, 0.7]) == "60.0 (0.0 to 100.0)"
+
+
+def test_equal_differences_over_seeds_give_no_interval_and_no_verdict_alone(tmp_path, make_results):
+    # 85 - 80, 88 - 83, 85 - 80: the same 5 points up to float rounding, so no spread to estimate an interval from
+    for seed, (m, d) in enumerate([(0.85, 0.80), (0.88, 0.83), (0.85, 0.80)]):
+        _run(tmp_path, "mddpg", seed, m, 200.0)
+        _run(tmp_path, "ddpg", seed, d, 150.0)
+    runs = make_results.reward_runs("deck1", tmp_path, 100, workers=1)
+    for recs in runs.values():  # (records without each episode's success: the interval over seeds alone)
+        for r in recs:
+            del r["goal_each"]
+    line = next(x for x in make_results.ablation_lines("deck1", runs) if "mddpg - ddpg" in x)
+    assert "+5.0 points, no verdict (every seed +5.0 points, no spread over seeds to give an interval)" in line
+    assert "ahead" not in line
