@@ -37,6 +37,7 @@ import torch
 from training.config import ConfigError, TrainConfig, bc_weight_at
 
 if TYPE_CHECKING:
+    from deck_sim.policies import LearnedPolicy
     from training.ddpg import DDPGAgent
     from training.loop import Trainer
 
@@ -188,6 +189,29 @@ def load_run_agent(run_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], Tra
         agent.set_actor_widths(widths)
     agent.load_state_dict(state["agent"])
     return state, cfg, agent
+
+
+def checkpoint_policy(run_dir: str | os.PathLike[str]) -> LearnedPolicy:
+    """The actor of a DDPG or MDDPG run folder's checkpoint (``load_run_agent``) as a policy that carries the critic
+    of the same moment (``training.final_fit.save_actor``'s file, not written): its ``meta`` is the run's actor
+    record at the checkpoint's step. ``CheckpointError`` naming the folder when it holds no checkpoint;
+    ``ValueError`` when the critic has ``LayerNorm``, which the numpy policy does not run."""
+    from deck_sim.policies import LearnedPolicy, load_actor
+    from training.envs import scene_layout
+    from training.final_fit import actor_meta
+
+    run_dir = Path(run_dir)
+    state, cfg, agent = load_run_agent(run_dir)
+    critic = agent.export_critic()
+    if critic is None:
+        raise ValueError(f"{run_dir}: the run's critic has LayerNorm (critic_layer_norm), which the numpy policy "
+                         "does not run")
+    template = next((p for p in (run_dir / "actor.npz", run_dir / "actor_best.npz") if p.is_file()), None)
+    commit = str(load_actor(template).meta.get("git_commit", "unknown")) if template else "unknown"
+    layout = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)
+    meta = {**actor_meta(cfg, layout, agent, int(state["step"]), commit, bool(state.get("polished", False))),
+            "critic": critic[1]}
+    return LearnedPolicy({**agent.export_actor(), **critic[0]}, meta, source=f"{run_dir} (checkpoint)")
 
 
 def load_run_checkpoint(run_dir: str | os.PathLike[str]) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""The learning subcommands of ``deck-sim``: ``train`` and ``ensemble``.
+"""The learning subcommands of ``deck-sim``: ``train``, ``ensemble`` and ``select``.
 
 ``register`` adds them to the simulator's command line (``deck_sim.cli``) through the ``deck_sim.cli`` entry-point
 group; training needs the ``train`` extra (torch, stable-baselines3, TensorBoard).
@@ -118,6 +118,28 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     meta = ensemble.meta
     print(f"wrote {out}: {len(ensemble.members)} {meta.get('algo', '?')} actors of scene {meta.get('scene', '?')!r} "
           f"(predictor {ensemble.predictor}), acting by their mean action; {out.stat().st_size / 1024:.0f} KiB")
+    return 0
+
+
+def cmd_select(args: argparse.Namespace) -> int:
+    """Write an actor file whose policy selects its actions by the critic it carries."""
+    from deck_sim.policies import load_actor, selecting
+
+    source, out = Path(args.source), Path(args.out)
+    if source.resolve() == out.resolve():
+        raise ValueError(f"--out {out} is the source; write the selecting actor elsewhere")
+    if source.is_dir():  # a run folder: the actor and critic of its checkpoint, as the run last saved them
+        from training.checkpoints import checkpoint_policy
+
+        policy = checkpoint_policy(source)
+        what = f"the actor and critic of {source}'s checkpoint at step {policy.meta['trained_steps']:,}"
+    else:
+        policy = load_actor(source)
+        what = str(source)
+    chosen = selecting(policy, args.candidates, args.spread, args.seed)
+    chosen.save(out)
+    print(f"wrote {out}: {what}, selecting each action by its critic among the actor's and {args.candidates} "
+          f"candidates around it (spread {args.spread}); {out.stat().st_size / 1024:.0f} KiB")
     return 0
 
 
@@ -278,7 +300,7 @@ def config_fields_help(width: int = 118) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``train`` and ``ensemble`` to ``deck-sim``'s subcommands."""
+    """Add ``train``, ``ensemble`` and ``select`` to ``deck-sim``'s subcommands."""
     p = add_command(
         sub, "train", cmd_train, "train an agent (mddpg, ddpg; dqn, a2c through stable-baselines3)",
         "A run folder holds config.json, progress.csv, eval.csv, TensorBoard curves (tb/), an atomic checkpoint and\n"
@@ -327,3 +349,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("actors", nargs="+", help="actor .npz files (deck-sim train's actor.npz; an ensemble file adds its "
                                              "actors), two or more actors of one observation and scene fields")
     p.add_argument("--out", required=True, help="the ensemble .npz to write (an existing file is replaced)")
+
+    p = add_command(
+        sub, "select", cmd_select, "make an actor select its actions by its critic",
+        "The actor proposes an action a; the critic rates a and clip(a + spread * z_j, -1, 1) for fixed unit-normal\n"
+        "offsets z_j, and the policy takes the best (a on a tie). Every tool that plays actor files plays the\n"
+        "written file this way (deck-sim run --policy, deck-sim eval --agents label=FILE).",
+    )
+    p.add_argument("source", help="an actor file that carries its critic (DDPG and MDDPG runs' actor.npz, "
+                                  "actor_best.npz), or a run folder (the actor and critic of its checkpoint)")
+    p.add_argument("--out", required=True, help="the actor .npz to write (an existing file is replaced)")
+    p.add_argument("--candidates", type=int, default=64, help="candidates around the actor's action (default 64)")
+    p.add_argument("--spread", type=float, default=0.3,
+                   help="standard deviation of the candidates around the actor's action, action units (default 0.3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fixed offsets (default 0)")

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from deck_sim.policies import ACTOR_FORMAT, ACTOR_FORMAT_SETS, obstacle_sets, set_indices
+from deck_sim.policies import ACTOR_FORMAT, ACTOR_FORMAT_SETS, CRITIC_PREFIX, obstacle_sets, set_indices
 from training.buffers import Batch
 from training.config import TrainConfig
 from training.networks import Actor, Critic, RunningNorm, SetActor
@@ -349,6 +349,20 @@ class DDPGAgent:
                 out[f"{prefix}w{i}"] = layer.weight.detach().numpy().astype(np.float32)
                 out[f"{prefix}b{i}"] = layer.bias.detach().numpy().astype(np.float32)
         return out
+
+    def export_critic(self) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
+        """The critic as plain arrays (float32) for an actor file (``deck_sim.policies.actors.CRITIC_PREFIX``:
+        each head's layers ``critic.q<h>.w<i>``, ``critic.q<h>.b<i>``) and the record that goes with them (heads and
+        ``twin_min_weight``), so that the file's policy can rate actions as the run rated them. None for a critic
+        with ``LayerNorm`` (``critic_layer_norm``), which the numpy policy does not run."""
+        if self.config.critic_layer_norm:
+            return None
+        out: dict[str, np.ndarray] = {}
+        for h, head in enumerate(self.critic.heads):
+            for i, layer in enumerate(m for m in head if isinstance(m, nn.Linear)):
+                out[f"{CRITIC_PREFIX}q{h}.w{i}"] = layer.weight.detach().numpy().astype(np.float32)
+                out[f"{CRITIC_PREFIX}q{h}.b{i}"] = layer.bias.detach().numpy().astype(np.float32)
+        return out, {"heads": len(self.critic.heads), "twin_min_weight": float(self.config.twin_min_weight)}
 
     def actor_meta(self) -> dict[str, Any]:
         """The format fields of the exported actor's record: ``deck_sim.actor/1`` for an MLP actor,

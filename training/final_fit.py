@@ -57,8 +57,14 @@ def actor_meta(
 
 def save_actor(path: str | os.PathLike[str], agent: DDPGAgent, meta: dict[str, Any], averaged: bool = False) -> None:
     """Write the agent's greedy actor (``averaged``: its slow average, ``DDPGAgent.actor_avg``) as a weights-only
-    ``.npz`` (atomically)."""
-    write_actor_file(path, agent.export_actor(averaged), meta, compress=False)
+    ``.npz`` (atomically), with the critic of the same moment (``DDPGAgent.export_critic``), which a policy that
+    selects its actions by the critic reads (``deck_sim.policies.selecting``; the actor alone acts otherwise)."""
+    arrays = agent.export_actor(averaged)
+    critic = agent.export_critic()
+    if critic is not None:
+        arrays.update(critic[0])
+        meta = {**meta, "critic": critic[1]}
+    write_actor_file(path, arrays, meta, compress=False)
 
 
 def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:

@@ -9,6 +9,7 @@ stable-baselines3 nor ``training``.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import struct
@@ -45,6 +46,15 @@ OBSTACLE_SETS: dict[str, tuple[str, ...]] = {
 }
 """Observation keys whose rows are one obstacle each, by set: a set actor reads each row of a set's keys as one
 element (mover ``j``'s position now, forecast and size together); every other key is the context."""
+CRITIC_PREFIX = "critic."
+"""An actor file of DDPG or MDDPG may carry the critic it was trained beside (``meta["critic"]``: ``heads``, the
+number of Q heads, and ``twin_min_weight``): arrays ``critic.q<h>.w<i>``, ``critic.q<h>.b<i>`` of each head, an
+MLP with ReLU hidden layers and one linear output over [the normalised observation, the action], as
+``training.networks.Critic``. The heads combine as the run's TD target combines them: ``twin_min_weight`` times the
+smaller plus the rest times the larger (TD3's minimum at 1)."""
+SELECT_OFFSETS = "select.offsets"
+"""With ``meta["select"]`` (``candidates``, ``spread``) and this (candidates, 2) array of offsets (unit normal
+draws, fixed in the file), the policy selects its action by its critic (``LearnedPolicy.select``)."""
 ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
 """Several actors of format 1, 2 or 3 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
 their actions (``EnsemblePolicy``)."""
@@ -168,6 +178,16 @@ class LearnedPolicy:
             self.norm_std = _real(arrays, "norm_std")
             self.norm_clip = float(_real(arrays, "norm_clip"))
             self.action_table = _real(arrays, "action_table") if self.head == "argmax" else None
+            self.critic_heads = [_layers(arrays, f"{CRITIC_PREFIX}q{h}.")
+                                 for h in range(int(self.meta["critic"]["heads"]))] if "critic" in self.meta else []
+            self.twin_min_weight = float(self.meta["critic"].get("twin_min_weight", 1.0)) if self.critic_heads \
+                else 1.0
+            self.offsets = None
+            if "select" in self.meta:
+                self.offsets = float(self.meta["select"]["spread"]) * _real(arrays, SELECT_OFFSETS)
+                if self.offsets.shape != (int(self.meta["select"]["candidates"]), 2):
+                    raise ValueError(f"{SELECT_OFFSETS} has shape {self.offsets.shape}, meta['select'] asks for "
+                                     f"{self.meta['select']['candidates']} candidates of 2")
             self._read_scene_overrides()  # a malformed record fails here, on loading, not when the scene is built
         except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as err:
             raise PolicyFileError(f"{source}: not a complete deck_sim actor ({err!r} missing or malformed)") from err
@@ -182,7 +202,8 @@ class LearnedPolicy:
                 self._context, self._elements = set_indices(self.shapes, self.sets)
             except ValueError as err:
                 raise PolicyFileError(f"{source}: {err}") from err
-        stray = sorted(k for k in arrays if re.fullmatch(r"(.+)\.[wb]\d+", k) and k.split(".")[0] not in self.sets)
+        stray = sorted(k for k in arrays if re.fullmatch(r"(.+)\.[wb]\d+", k) and k.split(".")[0] not in self.sets
+                       and not k.startswith(CRITIC_PREFIX))
         if stray:
             raise PolicyFileError(f"{source}: arrays {stray[:5]} are set encoders, but the file's format {fmt!r} "
                                   f"names the sets {sorted(self.sets)}")
@@ -202,9 +223,22 @@ class LearnedPolicy:
         norm_ok = self.norm_mean.shape == (dim,) and self.norm_std.shape == (dim,)
         if not self.weights or self.weights[-1].shape[0] != outputs or not norm_ok:
             raise PolicyFileError(f"{source}: expected {dim} inputs and {outputs} outputs, normaliser of size {dim}")
-        encoders = [a for ws, bs in self.encoders.values() for a in (*ws, *bs)]
+        for h, (ws, bs) in enumerate(self.critic_heads):
+            if not ws:
+                raise PolicyFileError(f"{source}: meta['critic'] names {len(self.critic_heads)} heads, head {h} has "
+                                      f"no layers ({CRITIC_PREFIX}q{h}.w0, ...)")
+            _check_layers(ws, bs, dim + 2, f"{source}, critic head {h}")
+            if ws[-1].shape[0] != 1:
+                raise PolicyFileError(f"{source}: critic head {h} has {ws[-1].shape[0]} outputs, expected 1")
+        if self.offsets is not None and not self.critic_heads:
+            raise PolicyFileError(f"{source}: meta['select'] asks to select actions by the critic, but the file "
+                                  "carries none (meta['critic'])")
+        if self.offsets is not None and self.action_table is not None:
+            raise PolicyFileError(f"{source}: selection by the critic needs a continuous action, not head 'argmax'")
+        encoders = [a for ws, bs in (*self.encoders.values(), *self.critic_heads) for a in (*ws, *bs)]
         if not all(np.all(np.isfinite(a)) for a in (*self.weights, *self.biases, *encoders, self.norm_mean,
-                                                     self.norm_std)):
+                                                     self.norm_std, *([] if self.offsets is None else
+                                                                      [self.offsets]))):
             raise PolicyFileError(f"{source}: the actor holds NaN or infinite weights")
         if self.norm_enabled and not np.all(self.norm_std > 0):
             raise PolicyFileError(f"{source}: the normaliser has a zero or negative std")
@@ -288,12 +322,70 @@ class LearnedPolicy:
         return np.concatenate(parts)
 
     def act_flat(self, x: np.ndarray) -> np.ndarray:
-        """Actions (..., 2) for flat observations (..., dim)."""
+        """Actions (..., 2) for flat observations (..., dim): the actor's, or the one its critic selects
+        (``select``) where the file asks for selection."""
+        x = self._normalised(x)
+        proposal = self._actor(x)
+        return proposal if self.offsets is None else self._select(x, proposal)
+
+    @property
+    def selects(self) -> bool:
+        """Whether the policy selects its actions by its critic (``select``)."""
+        return self.offsets is not None
+
+    def select(self, x: np.ndarray) -> np.ndarray:
+        """Critic-guided action selection for flat observations (..., dim): the actor proposes ``a``; the candidates
+        are ``a`` and ``clip(a + spread * offset_j, -1, 1)`` for each of the file's fixed offsets; the action is
+        the candidate of the largest Q (the heads combined as the run's TD target combined them), ``a`` itself on
+        a tie. ``PolicyFileError`` if the file carries no critic."""
+        if not self.critic_heads:
+            raise PolicyFileError(f"{self.source}: carries no critic to select actions by (meta['critic'])")
+        if self.offsets is None:
+            raise PolicyFileError(f"{self.source}: has no candidates to select among (meta['select'])")
+        x = self._normalised(x)
+        return self._select(x, self._actor(x))
+
+    def q_values(self, x: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The critic's Q (..., k) of flat observations (..., dim) with each of k actions (..., k, 2), the heads
+        combined as the run's TD target combined them; in the run's reward units times its ``reward_scale``."""
+        if not self.critic_heads:
+            raise PolicyFileError(f"{self.source}: carries no critic (meta['critic'])")
+        return self._q(self._normalised(x), np.asarray(actions, dtype=np.float64))
+
+    def _select(self, x: np.ndarray, proposal: np.ndarray) -> np.ndarray:
+        """The candidate of largest Q around ``proposal`` (..., 2) for normalised observations ``x`` (..., dim)."""
+        cand = np.concatenate([proposal[..., None, :],
+                               np.clip(proposal[..., None, :] + self.offsets, -1.0, 1.0)], axis=-2)
+        best = np.argmax(self._q(x, cand), axis=-1)
+        return np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
+
+    def _q(self, x: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Combined Q (..., k) of normalised observations (..., dim) with actions (..., k, 2)."""
+        h = np.concatenate([np.broadcast_to(x[..., None, :], (*actions.shape[:-1], x.shape[-1])), actions], axis=-1)
+        heads = []
+        for ws, bs in self.critic_heads:
+            y = h
+            for i, (w, b) in enumerate(zip(ws, bs, strict=True)):
+                y = y @ w.T + b
+                if i < len(ws) - 1:
+                    y = np.maximum(y, 0.0)
+            heads.append(y[..., 0])
+        q = np.min(heads, axis=0)
+        if len(heads) > 1 and self.twin_min_weight < 1.0:
+            q = self.twin_min_weight * q + (1.0 - self.twin_min_weight) * np.max(heads, axis=0)
+        return q
+
+    def _normalised(self, x: np.ndarray) -> np.ndarray:
+        """Flat observations (..., dim) as the networks read them (float64)."""
         x = np.asarray(x, dtype=np.float64)
         if self.meta.get("input_dtype") == "float32":  # trained on float32 observations (stable-baselines3)
             x = x.astype(np.float32).astype(np.float64)
         if self.norm_enabled:
             x = np.clip((x - self.norm_mean) / self.norm_std, -self.norm_clip, self.norm_clip)
+        return x
+
+    def _actor(self, x: np.ndarray) -> np.ndarray:
+        """The actor's actions (..., 2) for normalised flat observations (..., dim)."""
         if self.sets:
             x = self._pooled(x)
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
@@ -322,6 +414,26 @@ class LearnedPolicy:
     def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The actor's action (2,) for one observation dict."""
         return self.act_flat(self.flatten(observation))
+
+
+def selecting(policy: LearnedPolicy, candidates: int = 64, spread: float = 0.3, seed: int = 0) -> LearnedPolicy:
+    """A copy of ``policy`` (one actor that carries its critic) that selects its actions by that critic
+    (``LearnedPolicy.select``): ``candidates`` offsets drawn once from the unit normal (``seed``), stored in the
+    copy's arrays, scaled by ``spread`` (action units; the action box is [-1, 1] per axis). Its ``meta`` records
+    both. ``save`` writes it as an actor file that every tool reading actor files plays with selection."""
+    if not isinstance(policy, LearnedPolicy):
+        raise PolicyFileError(f"{getattr(policy, 'source', policy)}: selection by the critic is for one actor; an "
+                              "ensemble's members carry a critic each and no common one")
+    if not policy.critic_heads:
+        raise PolicyFileError(f"{policy.source}: carries no critic to select actions by (actor files of DDPG and "
+                              "MDDPG runs carry their critic; older files, stable-baselines3's and those of a "
+                              "LayerNorm critic do not)")
+    if candidates < 1 or not (math.isfinite(spread) and spread > 0):
+        raise ValueError(f"selection needs at least 1 candidate and a positive spread, got {candidates} and {spread}")
+    arrays = {**policy.arrays,
+              SELECT_OFFSETS: np.random.default_rng(seed).standard_normal((candidates, 2)).astype(np.float32)}
+    meta = {**policy.meta, "select": {"candidates": int(candidates), "spread": float(spread), "seed": int(seed)}}
+    return LearnedPolicy(arrays, meta, source=policy.source)
 
 
 def _sets_record(record: Any) -> dict[str, list[str]]:

@@ -1,0 +1,120 @@
+"""Does a DDPG / MDDPG run act better when its own critic picks each action around its actor's?
+
+For each run folder, the actor and critic of its checkpoint (``training.checkpoints.checkpoint_policy``: the pair as
+the run last saved them) play the same held-out episodes (``deck_sim.evaluation``: episode ``i`` reset with seed
+``DEFAULT_SEED + i``, the episodes of ``docs/results.md`` and their continuation) twice: the actor alone, and with
+critic-guided selection (``deck_sim.policies.selecting``: the actor proposes a, the critic picks the best of a and
+``--candidates`` fixed offsets around it, ``--spread`` action units). Both learn nothing from anyone but the reward:
+the critic is the run's own.
+
+Prints, per run, success with its Wilson 95 % interval and collisions, with and without selection, and the
+difference in success paired by episode with its 95 % interval (Student's t over the episodes); then, per arm (the
+runs' recipe, or their algorithm), the mean difference over its seeds with the 95 % interval over seeds; and where
+the runs form one MDDPG arm and one DDPG arm that share seeds, the difference MDDPG - DDPG paired by seed, with and
+without selection. The machine and the load average go first.
+
+    python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
+        [--workers N]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from common import machine  # noqa: E402
+
+from deck_sim.evaluation import EvalConfig, evaluate  # noqa: E402
+from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
+from deck_sim.policies import PolicyFileError, selecting  # noqa: E402
+from training.checkpoints import CheckpointError, checkpoint_policy  # noqa: E402
+
+
+def play(file: Path, scene: str, episodes: int, workers: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-episode success and collision (bool arrays, by episode index) of the actor file on ``episodes``
+    held-out episodes of ``scene``."""
+    res = evaluate(EvalConfig(agents=(f"run={file}",), scenes=(scene,), episodes=episodes, workers=workers,
+                              record="none"))
+    rows = sorted(res.episodes, key=lambda r: int(r["seed"]))
+    return (np.array([r["outcome"] == "goal" for r in rows]), np.array([r["outcome"] == "collision" for r in rows]))
+
+
+def rate(success: np.ndarray, collided: np.ndarray) -> str:
+    """``success 85.0% (76.7%-90.7%), collision 15.0%``."""
+    k, n = int(success.sum()), len(success)
+    lo, hi = rate_interval(k, n)
+    return f"success {k / n:6.1%} ({lo:.1%}-{hi:.1%}), collision {collided.mean():6.1%}"
+
+
+def points(values: list[float] | np.ndarray) -> str:
+    """Mean and 95 % interval in points: ``+6.0 (+1.2 to +10.8)``; no interval for one value."""
+    m, lo, hi = mean_interval(np.asarray(values, dtype=float))
+    return f"{100 * m:+.1f}" + (f" ({100 * lo:+.1f} to {100 * hi:+.1f})" if len(values) > 1 else "")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="DDPG or MDDPG run folders holding checkpoint.pt")
+    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per run (default 100)")
+    parser.add_argument("--candidates", type=int, default=64, help="candidates around the actor's action")
+    parser.add_argument("--spread", type=float, default=0.3, help="their standard deviation, action units")
+    parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
+    args = parser.parse_args()
+    if args.episodes < 2:
+        parser.error(f"--episodes must be at least 2, got {args.episodes}")
+    policies = {}
+    for run in args.runs:
+        try:
+            policies[run] = checkpoint_policy(run)
+        except (CheckpointError, PolicyFileError, ValueError) as err:
+            sys.exit(f"critic_select.py: {err}")
+    print(machine())
+    print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
+    print(f"selection: the actor's action and {args.candidates} candidates around it, spread {args.spread}; "
+          f"{args.episodes} held-out episodes per run")
+    results: dict[Path, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, run in enumerate(args.runs):
+            policy = policies[run]
+            scene, step = str(policy.meta["scene"]), int(policy.meta["trained_steps"])
+            plain, chosen = Path(tmp) / f"a{i}.npz", Path(tmp) / f"s{i}.npz"
+            policy.save(plain)
+            selecting(policy, args.candidates, args.spread).save(chosen)
+            results[run] = {"actor": play(plain, scene, args.episodes, args.workers),
+                            "select": play(chosen, scene, args.episodes, args.workers)}
+            (sa, ca), (ss, cs) = results[run]["actor"], results[run]["select"]
+            print(f"\n{run} ({policy.meta['algo']}, scene {scene}, checkpoint at step {step:,})")
+            print(f"  actor   {rate(sa, ca)}")
+            print(f"  select  {rate(ss, cs)}; minus the actor: {points(ss.astype(float) - sa.astype(float))} points",
+                  flush=True)
+    arms: dict[tuple[str, str], dict[int, dict[str, float]]] = {}  # (algo, arm) -> seed -> success by mode
+    for run, r in results.items():
+        cfg = policies[run].meta["config"]
+        arm = str((cfg.get("extra") or {}).get("recipe") or policies[run].meta["algo"])
+        arms.setdefault((str(policies[run].meta["algo"]), arm), {})[int(cfg["seed"])] = {
+            k: float(v[0].mean()) for k, v in r.items()}
+    print()
+    for (_, arm), seeds in arms.items():
+        gains = [s["select"] - s["actor"] for s in seeds.values()]
+        print(f"{arm}: selection minus the actor over seeds {', '.join(map(str, seeds))}: {points(gains)} points")
+    mddpg = [seeds for (algo, _), seeds in arms.items() if algo == "mddpg"]
+    ddpg = [seeds for (algo, _), seeds in arms.items() if algo == "ddpg"]
+    if len(mddpg) == 1 and len(ddpg) == 1:  # (one arm of each: the prediction ablation)
+        shared = sorted(set(mddpg[0]) & set(ddpg[0]))
+        for mode in ("actor", "select"):
+            if shared:
+                diff = [mddpg[0][s][mode] - ddpg[0][s][mode] for s in shared]
+                print(f"mddpg - ddpg ({mode}), paired over seeds {', '.join(map(str, shared))}: {points(diff)} points")
+    print(f"load average at the end: {os.getloadavg()[0]:.1f} (1 min)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Critic-guided action selection: actor files of DDPG / MDDPG runs carry their critic, which the numpy policy
+runs as the run's torch critic does; a selecting policy takes the best-rated candidate around its actor's action;
+``deck-sim select`` writes one from an actor file or a run folder's checkpoint; broken records are refused by
+name; ``benchmarks/critic_select.py`` compares a run's actor with and without selection."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import run_steps, short_config
+
+import deck_sim
+from deck_sim.cli import main as cli
+from deck_sim.policies import (
+    SELECT_OFFSETS,
+    LearnedPolicy,
+    PolicyFileError,
+    load_actor,
+    selecting,
+    shipped_policy_path,
+)
+from training.checkpoints import checkpoint_policy, load_run_agent
+from training.loop import Trainer
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    """A seconds-long MDDPG run on deck 1 with twin critics and a checkpoint, trained once for the module."""
+    out = tmp_path_factory.mktemp("select") / "run"
+    cfg = short_config(algo="mddpg", total_steps=300, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
+                       expert_relabel=False, twin_critics=True, policy_delay=2, twin_min_weight=0.75)
+    trainer = Trainer(cfg, out, progress=False)
+    trainer.train()
+    trainer.close()
+    return out
+
+
+def test_the_exported_actor_carries_its_critic_which_numpy_rates_as_torch_does(run):
+    policy = LearnedPolicy.load(run / "actor.npz")
+    assert policy.meta["critic"] == {"heads": 2, "twin_min_weight": 0.75} and not policy.selects
+    _, _, agent = load_run_agent(run)
+    x = np.stack([policy.flatten(o) for o in run_steps(deck_sim.load("deck1", seed=2, **policy.scene_overrides),
+                                                        6, seed=2)[0]])
+    actions = np.random.default_rng(0).uniform(-1, 1, (len(x), 5, 2))
+    with torch.no_grad():
+        xs = agent.norm(torch.from_numpy(x.astype(np.float32)))
+        heads = torch.stack(agent.critic(xs[:, None].expand(-1, 5, -1).reshape(-1, xs.shape[1]),
+                                         torch.from_numpy(actions.reshape(-1, 2).astype(np.float32))))
+        expected = agent.combine_heads(heads).reshape(len(x), 5).numpy()
+    np.testing.assert_allclose(policy.q_values(x, actions), expected, rtol=1e-4, atol=1e-4)
+    # the actor alone acts as before: a file without selection plays its actor's action
+    np.testing.assert_allclose(policy.act_flat(x), agent.act(x.astype(np.float32)), rtol=1e-4, atol=1e-5)
+
+
+def test_a_selecting_policy_takes_the_best_rated_candidate_around_its_actors_action(run, tmp_path):
+    base = LearnedPolicy.load(run / "actor.npz")
+    chosen = selecting(base, candidates=16, spread=0.4, seed=3)
+    assert chosen.selects and chosen.meta["select"] == {"candidates": 16, "spread": 0.4, "seed": 3}
+    x = np.stack([base.flatten(o) for o in run_steps(deck_sim.load("deck1", seed=4, **base.scene_overrides),
+                                                      8, seed=4)[0]])
+    proposal = base.act_flat(x)
+    offsets = 0.4 * np.random.default_rng(3).standard_normal((16, 2))
+    cand = np.concatenate([proposal[:, None], np.clip(proposal[:, None] + offsets, -1, 1)], axis=1)
+    q = base.q_values(x, cand)
+    expected = cand[np.arange(len(x)), q.argmax(axis=1)]
+    np.testing.assert_allclose(chosen.act_flat(x), expected, atol=1e-6)
+    np.testing.assert_allclose(chosen.select(x), expected, atol=1e-6)
+    assert np.all(chosen.q_values(x, chosen.act_flat(x)[:, None])[:, 0] >= q[:, 0] - 1e-9)  # never below the actor's
+    # the file round-trips, and plays an episode through the public rollout
+    path = chosen.save(tmp_path / "chosen.npz")
+    again = load_actor(path)
+    np.testing.assert_array_equal(again.act_flat(x), chosen.act_flat(x))
+    env = deck_sim.load("deck1", seed=1, **again.scene_overrides)
+    ts = env.reset()
+    for _ in range(5):
+        action = again.act(ts.observation)
+        assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+        ts = env.step(action)
+
+
+def test_selection_records_that_cannot_serve_are_refused_by_name(run):
+    base = LearnedPolicy.load(run / "actor.npz")
+    chosen = selecting(base, candidates=4)
+    without_critic = {k: v for k, v in chosen.arrays.items() if not k.startswith("critic.")}
+    meta = {k: v for k, v in chosen.meta.items() if k != "critic"}
+    with pytest.raises(PolicyFileError, match=r"meta\['select'\] asks to select actions by the critic, but the file "
+                                              r"carries none"):
+        LearnedPolicy(without_critic, meta)
+    with pytest.raises(PolicyFileError, match=r"select.offsets has shape \(3, 2\), meta\['select'\] asks for 4"):
+        LearnedPolicy({**chosen.arrays, SELECT_OFFSETS: chosen.arrays[SELECT_OFFSETS][:3]}, chosen.meta)
+    bad = dict(chosen.arrays)
+    bad["critic.q1.w0"] = bad["critic.q1.w0"][:, :-1]
+    with pytest.raises(PolicyFileError, match="critic head 1: layer 0 has weight"):
+        LearnedPolicy(bad, chosen.meta)
+    with pytest.raises(PolicyFileError, match="NaN or infinite"):
+        LearnedPolicy({**chosen.arrays, SELECT_OFFSETS: np.full((4, 2), np.nan, np.float32)}, chosen.meta)
+    with pytest.raises(PolicyFileError, match="carries no critic to select actions by"):
+        selecting(LearnedPolicy(without_critic, {k: v for k, v in base.meta.items() if k != "critic"}))
+    with pytest.raises(PolicyFileError, match="selection by the critic is for one actor"):
+        selecting(load_actor(shipped_policy_path("mddpg", "deck1")))
+    with pytest.raises(ValueError, match="positive spread"):
+        selecting(base, spread=0.0)
+
+
+def test_deck_sim_select_writes_a_selecting_actor_from_a_file_or_a_run_folder(run, tmp_path, capsys):
+    assert cli(["select", str(run / "actor.npz"), "--out", str(tmp_path / "a.npz"), "--candidates", "8"]) == 0
+    assert "selecting each action by its critic among the actor's and 8 candidates" in capsys.readouterr().out
+    assert load_actor(tmp_path / "a.npz").meta["select"]["candidates"] == 8
+    assert cli(["select", str(run), "--out", str(tmp_path / "b.npz")]) == 0
+    assert "the actor and critic of" in capsys.readouterr().out
+    from_checkpoint = load_actor(tmp_path / "b.npz")
+    assert from_checkpoint.selects and from_checkpoint.meta["trained_steps"] == checkpoint_policy(run).meta[
+        "trained_steps"]
+    # the final actor.npz is the checkpoint's actor: the same weights
+    np.testing.assert_array_equal(from_checkpoint.arrays["w0"], LearnedPolicy.load(run / "actor.npz").arrays["w0"])
+    assert cli(["select", str(shipped_policy_path("mddpg", "deck1")), "--out", str(tmp_path / "c.npz")]) != 0
+    assert "selection by the critic is for one actor" in capsys.readouterr().err
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
+    done = subprocess.run(
+        [sys.executable, "benchmarks/critic_select.py", str(run), "--episodes", "2", "--candidates", "4",
+         "--workers", "1"],
+        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
+        text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
+    assert "mddpg: selection minus the actor over seeds 0:" in out

@@ -1,0 +1,119 @@
+"""``benchmarks/forecast_reads.py``: the stationary view rebuilt from a stored observation is the observation the
+``stationary`` predictor gives of the same state, and a real MDDPG run's critic and actor are compared on it."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import short_config
+
+from deck_sim.wrappers import DeckSimEnv
+from training.envs import env_layout
+from training.loop import Trainer
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("forecast_reads", ROOT / "benchmarks" / "forecast_reads.py")
+sys.path.insert(0, str(ROOT / "benchmarks"))
+forecast_reads = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(forecast_reads)
+
+NEAR = {"episode__near_steps": 4, "episode__near_obstacles": True, "episode__predicted_near": True}
+
+
+@pytest.mark.parametrize("options", [NEAR, {**NEAR, "episode__frame": "agent"}, {"episode__predicted_frame": "mover"}])
+def test_the_stationary_view_is_what_the_stationary_predictor_observes(options):
+    mpc = DeckSimEnv("deck1", episode__predictor="mpc", **options)
+    still = DeckSimEnv("deck1", episode__predictor="stationary", **options)
+    layout = env_layout(mpc)
+    mover_frame = options.get("episode__predicted_frame") == "mover"
+    rng = np.random.default_rng(0)
+    rows, moved = [], 0.0
+    try:
+        obs, _ = mpc.reset(seed=11)
+        ref, _ = still.reset(seed=11)
+        for _ in range(25):  # (the predictor does not act on the physics: both play the same episode)
+            rows.append((obs, ref))
+            action = rng.uniform(-1.0, 1.0, 2)
+            obs, *_, done, cut, _ = mpc.step(action)
+            ref, *_ = still.step(action)
+            if done or cut:
+                break
+    finally:
+        mpc.close()
+        still.close()
+    given = np.stack([o for o, _ in rows])
+    expected = np.stack([r for _, r in rows])
+    sl = layout.slices()
+    moved = np.abs(given[:, sl["predicted"]] - expected[:, sl["predicted"]]).max()
+    assert moved > 0.1  # (the MPC forecast moves the movers: the view has something to take out)
+    np.testing.assert_allclose(forecast_reads.stationary_view(given, layout, mover_frame), expected, atol=1e-5)
+
+
+def test_the_stationary_view_refuses_what_it_cannot_rebuild_and_encounters_need_a_near_moving_mover():
+    env = DeckSimEnv("deck1", episode__predictor="mpc", episode__predicted_approach=True)
+    try:
+        layout = env_layout(env)
+        with pytest.raises(ValueError, match="`predicted_approach` is observed"):
+            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
+    finally:
+        env.close()
+    env = DeckSimEnv("deck1", episode__predictor="none")
+    try:
+        layout = env_layout(env)
+        with pytest.raises(ValueError, match="no forecast"):
+            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
+    finally:
+        env.close()
+    env = DeckSimEnv("deck1", episode__predictor="mpc")
+    try:
+        layout = env_layout(env)
+    finally:
+        env.close()
+    n, horizon, _ = layout.shapes["predicted"]
+    sl = layout.slices()
+    flat = np.zeros((4, layout.dim), np.float32)
+    now = np.full((4, n, 2), 500.0, np.float32)
+    now[:, 0] = (10.0, 0.0)  # mover 0 ten metres away in every row
+    forecast = np.repeat(now[:, :, None], horizon, axis=2)
+    forecast[1, 0, -1] += (2.0, 0.0)  # row 1: it moves 2 m: an encounter
+    forecast[2, 0, -1] += (0.5, 0.0)  # row 2: 0.5 m: too little
+    now[3, 0] = (40.0, 0.0)  # row 3: moves 2 m but 40 m away
+    forecast[3, 0] = now[3, 0]
+    forecast[3, 0, -1] += (2.0, 0.0)
+    flat[:, sl["dynamic_obstacles"]] = now.reshape(4, -1)
+    flat[:, sl["predicted"]] = forecast.reshape(4, -1)
+    assert forecast_reads.encounters(flat, layout, near=30.0, moving=1.0).tolist() == [False, True, False, False]
+
+
+def test_a_runs_critic_and_actor_are_compared_on_its_buffer_and_a_ddpg_run_is_refused(tmp_path):
+    runs = {}
+    for algo in ("mddpg", "ddpg"):
+        cfg = short_config(algo=algo, total_steps=400, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
+                           expert_relabel=False, twin_critics=True, policy_delay=2)
+        runs[algo] = tmp_path / algo
+        trainer = Trainer(cfg, runs[algo], progress=False)
+        trainer.train()
+        trainer.close()
+    done = subprocess.run(
+        [sys.executable, "benchmarks/forecast_reads.py", str(runs["mddpg"]), str(runs["ddpg"]), "--samples", "60",
+         "--actions", "16", "--near", "1000"],
+        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
+        text=True, timeout=300,
+    )
+    assert done.returncode == 1
+    assert f"{runs['ddpg']}: the observation has no forecast" in done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.startswith("| mddpg | 400 |")]
+    assert [r.split("|")[3].strip() for r in rows] == ["all", "encounters"]
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert int(cells[3]) == 60
+    assert len(cells) == 11
+    critic_shift, critic_cost, actor_shift, _, spread, heads_shift, heads_cost = map(float, cells[4:11])
+    assert 0.0 <= critic_shift <= 2 * np.sqrt(2) and critic_cost >= 0.0 and actor_shift >= 0.0 and spread >= 0.0
+    assert 0.0 <= heads_shift <= 2 * np.sqrt(2) and heads_cost >= 0.0
+    assert 0 <= int(rows[1].strip("|").split("|")[3]) <= 60
