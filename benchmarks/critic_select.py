@@ -14,7 +14,11 @@ the runs form one MDDPG arm and one DDPG arm that share seeds, the difference MD
 without selection. The machine and the load average go first.
 
     python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
-        [--workers N]
+        [--predictors stationary] [--workers N]
+
+With ``--predictors`` (other forecasts, e.g. ``stationary``: every mover held where it is now) each MDDPG run also
+plays both ways with that forecast in place of its own (``forecast_use.py``'s swap), and the difference to its own
+forecast, paired by episode, says how much of each way's success the forecast carries.
 """
 
 from __future__ import annotations
@@ -31,7 +35,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from common import machine  # noqa: E402
+from forecast_use import with_predictor  # noqa: E402
 
+from deck_sim.control.prediction import PREDICTOR_NAMES  # noqa: E402
 from deck_sim.evaluation import EvalConfig, evaluate  # noqa: E402
 from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
 from deck_sim.policies import PolicyFileError, selecting  # noqa: E402
@@ -66,10 +72,17 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per run (default 100)")
     parser.add_argument("--candidates", type=int, default=64, help="candidates around the actor's action")
     parser.add_argument("--spread", type=float, default=0.3, help="their standard deviation, action units")
+    parser.add_argument("--predictors", default="",
+                        help="other forecasts an MDDPG run also plays with, comma-separated (e.g. stationary)")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args()
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
+    swaps = [p for p in args.predictors.split(",") if p]
+    bad = [p for p in swaps if p not in PREDICTOR_NAMES or p == "none"]
+    if bad:
+        parser.error(f"--predictors: expected names of {', '.join(p for p in PREDICTOR_NAMES if p != 'none')}, "
+                     f"got {bad}")
     policies = {}
     for run in args.runs:
         try:
@@ -95,6 +108,13 @@ def main() -> None:
             print(f"  actor   {rate(sa, ca)}")
             print(f"  select  {rate(ss, cs)}; minus the actor: {points(ss.astype(float) - sa.astype(float))} points",
                   flush=True)
+            for predictor in (swaps if policy.predictor != "none" else []):
+                for mode, file in (("actor", plain), ("select", chosen)):
+                    swapped = with_predictor(file, predictor, Path(tmp) / f"{mode}{i}_{predictor}.npz")
+                    sp, cp = play(swapped, scene, args.episodes, args.workers)
+                    own = results[run][mode][0]
+                    print(f"  {mode:<7} with {predictor} forecasts: {rate(sp, cp)}; minus its own forecast: "
+                          f"{points(sp.astype(float) - own.astype(float))} points", flush=True)
     arms: dict[tuple[str, str], dict[int, dict[str, float]]] = {}  # (algo, arm) -> seed -> success by mode
     for run, r in results.items():
         cfg = policies[run].meta["config"]

@@ -129,7 +129,7 @@ def test_deck_sim_select_writes_a_selecting_actor_from_a_file_or_a_run_folder(ru
 def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     done = subprocess.run(
         [sys.executable, "benchmarks/critic_select.py", str(run), "--episodes", "2", "--candidates", "4",
-         "--workers", "1"],
+         "--predictors", "stationary", "--workers", "1"],
         cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
         text=True, timeout=600,
     )
@@ -137,3 +137,5 @@ def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     out = done.stdout
     assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
     assert "mddpg: selection minus the actor over seeds 0:" in out
+    assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
+    assert out.count("minus its own forecast:") == 2
