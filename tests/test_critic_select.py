@@ -1,7 +1,8 @@
 """Critic-guided action selection: actor files of DDPG / MDDPG runs carry their critic, which the numpy policy
 runs as the run's torch critic does; a selecting policy takes the best-rated candidate around its actor's action;
 ``deck-sim select`` writes one from an actor file or a run folder's checkpoint; broken records are refused by
-name; ``benchmarks/critic_select.py`` compares a run's actor with and without selection."""
+name; ``benchmarks/critic_select.py`` compares a run's actor with and without selection, and
+``benchmarks/forecast_reads.py`` its critic and actor on the run's buffer."""
 
 from __future__ import annotations
 
@@ -139,3 +140,22 @@ def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     assert "mddpg: selection minus the actor over seeds 0:" in out
     assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
     assert out.count("minus its own forecast:") == 2
+
+
+def test_forecast_reads_compares_a_runs_critic_and_actor_on_its_own_buffer(run, tmp_path):
+    done = subprocess.run(
+        [sys.executable, "benchmarks/forecast_reads.py", str(run), str(tmp_path / "empty"), "--samples", "60",
+         "--actions", "16", "--near", "1000"],
+        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
+        text=True, timeout=300,
+    )
+    assert done.returncode == 1
+    assert f"{tmp_path / 'empty'}: no checkpoint.pt" in done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.startswith("| run | 300 |")]
+    assert [r.split("|")[3].strip() for r in rows] == ["all", "encounters"]
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert len(cells) == 11 and int(cells[3]) == 60
+    critic_shift, critic_cost, actor_shift, _, spread, heads_shift, heads_cost = map(float, cells[4:11])
+    assert 0.0 <= critic_shift <= 2 * np.sqrt(2) and critic_cost >= 0.0 and actor_shift >= 0.0 and spread >= 0.0
+    assert 0.0 <= heads_shift <= 2 * np.sqrt(2) and heads_cost >= 0.0
+    assert 0 <= int(rows[1].strip("|").split("|")[3]) <= 60

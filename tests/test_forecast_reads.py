@@ -1,21 +1,18 @@
 """``benchmarks/forecast_reads.py``: the stationary view rebuilt from a stored observation is the observation the
-``stationary`` predictor gives of the same state, and a real MDDPG run's critic and actor are compared on it."""
+``stationary`` predictor gives of the same state, and encounters are the states with a near, moving mover (the
+script on a real run: tests/test_critic_select.py, which trains one)."""
 
 from __future__ import annotations
 
 import importlib.util
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import short_config
 
 from deck_sim.wrappers import DeckSimEnv
 from training.envs import env_layout
-from training.loop import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("forecast_reads", ROOT / "benchmarks" / "forecast_reads.py")
@@ -89,31 +86,3 @@ def test_the_stationary_view_refuses_what_it_cannot_rebuild_and_encounters_need_
     flat[:, sl["dynamic_obstacles"]] = now.reshape(4, -1)
     flat[:, sl["predicted"]] = forecast.reshape(4, -1)
     assert forecast_reads.encounters(flat, layout, near=30.0, moving=1.0).tolist() == [False, True, False, False]
-
-
-def test_a_runs_critic_and_actor_are_compared_on_its_buffer_and_a_ddpg_run_is_refused(tmp_path):
-    runs = {}
-    for algo in ("mddpg", "ddpg"):
-        cfg = short_config(algo=algo, total_steps=400, demo_episodes=0, pretrain_updates=0, bc_weight=0.0,
-                           expert_relabel=False, twin_critics=True, policy_delay=2)
-        runs[algo] = tmp_path / algo
-        trainer = Trainer(cfg, runs[algo], progress=False)
-        trainer.train()
-        trainer.close()
-    done = subprocess.run(
-        [sys.executable, "benchmarks/forecast_reads.py", str(runs["mddpg"]), str(runs["ddpg"]), "--samples", "60",
-         "--actions", "16", "--near", "1000"],
-        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
-        text=True, timeout=300,
-    )
-    assert done.returncode == 1
-    assert f"{runs['ddpg']}: the observation has no forecast" in done.stderr
-    rows = [line for line in done.stdout.splitlines() if line.startswith("| mddpg | 400 |")]
-    assert [r.split("|")[3].strip() for r in rows] == ["all", "encounters"]
-    cells = [c.strip() for c in rows[0].strip("|").split("|")]
-    assert int(cells[3]) == 60
-    assert len(cells) == 11
-    critic_shift, critic_cost, actor_shift, _, spread, heads_shift, heads_cost = map(float, cells[4:11])
-    assert 0.0 <= critic_shift <= 2 * np.sqrt(2) and critic_cost >= 0.0 and actor_shift >= 0.0 and spread >= 0.0
-    assert 0.0 <= heads_shift <= 2 * np.sqrt(2) and heads_cost >= 0.0
-    assert 0 <= int(rows[1].strip("|").split("|")[3]) <= 60
