@@ -20,6 +20,7 @@ import deck_sim
 from deck_sim.cli import main as cli
 from deck_sim.policies import (
     SELECT_OFFSETS,
+    EnsemblePolicy,
     LearnedPolicy,
     PolicyFileError,
     load_actor,
@@ -159,3 +160,18 @@ def test_forecast_reads_compares_a_runs_critic_and_actor_on_its_own_buffer(run, 
     assert 0.0 <= critic_shift <= 2 * np.sqrt(2) and critic_cost >= 0.0 and actor_shift >= 0.0 and spread >= 0.0
     assert 0.0 <= heads_shift <= 2 * np.sqrt(2) and heads_cost >= 0.0
     assert 0 <= int(rows[1].strip("|").split("|")[3]) <= 60
+
+
+def test_an_ensemble_of_selecting_members_averages_their_selected_actions_and_claims_no_critic_of_its_own(run,
+                                                                                                         tmp_path):
+    base = LearnedPolicy.load(run / "actor.npz")
+    members = [selecting(base, candidates=8, spread=0.3, seed=1), base]
+    ensemble = EnsemblePolicy(members)
+    assert "critic" not in ensemble.meta and "select" not in ensemble.meta
+    assert ensemble.meta["members"][0]["select"]["candidates"] == 8
+    x = np.stack([base.flatten(o) for o in run_steps(deck_sim.load("deck1", seed=6, **base.scene_overrides),
+                                                      4, seed=6)[0]])
+    expected = (members[0].act_flat(x) + base.act_flat(x)) / 2
+    np.testing.assert_allclose(ensemble.act_flat(x), expected, atol=1e-12)
+    again = load_actor(ensemble.save(tmp_path / "e.npz"))
+    np.testing.assert_allclose(again.act_flat(x), expected, atol=1e-12)

@@ -483,7 +483,8 @@ class EnsemblePolicy:
     record whose ``members`` list the members' own records; its other fields are the first member's (scene,
     algorithm, predictor, observation, and also ``config``, ``trained_steps``, ``git_commit`` and ``polished``,
     which may differ between members: read those from ``members``), so code that reads one actor's record reads an
-    ensemble's.
+    ensemble's. A member's critic and its selection by it (``selecting``) stay the member's: a member that selects
+    picks its own action by its own critic before the mean is taken.
     """
 
     def __init__(self, members: Sequence[LearnedPolicy], source: str = "<members>") -> None:
@@ -507,7 +508,8 @@ class EnsemblePolicy:
                 raise PolicyFileError(f"{source}: member {i} ({m.source}) needs scene fields {m.scene_overrides}, "
                                       f"member 0 ({first.source}) needs {first.scene_overrides}")
         self.keys, self.shapes = first.keys, first.shapes
-        self.meta = {**first.meta, "format": ENSEMBLE_FORMAT, "combine": "mean",
+        own = {k: v for k, v in first.meta.items() if k not in ("critic", "select")}  # (each member's, not the mean's)
+        self.meta = {**own, "format": ENSEMBLE_FORMAT, "combine": "mean",
                      "members": [dict(m.meta) for m in self.members]}
 
     @classmethod
