@@ -9,9 +9,10 @@ the critic is the run's own.
 
 Prints, per run, success with its Wilson 95 % interval and collisions, with and without selection, and the
 difference in success paired by episode with its 95 % interval (Student's t over the episodes); then, per arm (the
-runs' recipe, or their algorithm), the mean difference over its seeds with the 95 % interval over seeds; and where
-the runs form one MDDPG arm and one DDPG arm that share seeds, the difference MDDPG - DDPG paired by seed, with and
-without selection. The machine and the load average go first.
+scene and the runs' recipe, or their algorithm), the mean difference over its seeds with the 95 % interval over
+seeds; and where the runs form one MDDPG arm and one DDPG arm of one scene that share seeds, the difference
+MDDPG - DDPG paired by seed, with and without selection. Two runs of one arm with the same seed are refused. The
+machine and the load average go first.
 
     python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
         [--predictors stationary] [--workers N]
@@ -61,9 +62,20 @@ def rate(success: np.ndarray, collided: np.ndarray) -> str:
 
 
 def points(values: list[float] | np.ndarray) -> str:
-    """Mean and 95 % interval in points: ``+6.0 (+1.2 to +10.8)``; no interval for one value."""
+    """Mean and 95 % interval in points: ``+6.0 (+1.2 to +10.8)``; no interval for one value, nor for values that
+    are all equal (no spread to estimate one from: said so)."""
     m, lo, hi = mean_interval(np.asarray(values, dtype=float))
-    return f"{100 * m:+.1f}" + (f" ({100 * lo:+.1f} to {100 * hi:+.1f})" if len(values) > 1 else "")
+    if len(values) < 2:
+        return f"{100 * m:+.1f}"
+    if hi - lo < 1e-9:  # (float rounding)
+        return f"{100 * m:+.1f} (each the same: no spread to give an interval)"
+    return f"{100 * m:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f})"
+
+
+def arm_key(meta: dict) -> tuple[str, str]:
+    """(algorithm, arm label) of an actor record: the label is the scene and the run's recipe (or algorithm)."""
+    cfg = meta["config"]
+    return str(meta["algo"]), f"{meta['scene']} {(cfg.get('extra') or {}).get('recipe') or meta['algo']}"
 
 
 def main() -> None:
@@ -89,6 +101,13 @@ def main() -> None:
             policies[run] = checkpoint_policy(run)
         except (CheckpointError, PolicyFileError, ValueError) as err:
             sys.exit(f"critic_select.py: {err}")
+    arm_of = {run: arm_key(policy.meta) for run, policy in policies.items()}
+    seen: set[tuple[str, str, int]] = set()
+    for run, key in arm_of.items():
+        seed = int(policies[run].meta["config"]["seed"])
+        if (*key, seed) in seen:
+            parser.error(f"two runs of {key[1]} with seed {seed}: give each arm's seeds once")
+        seen.add((*key, seed))
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
     print(f"selection: the actor's action and {args.candidates} candidates around it, spread {args.spread}; "
@@ -117,9 +136,7 @@ def main() -> None:
                           f"{points(sp.astype(float) - own.astype(float))} points", flush=True)
     arms: dict[tuple[str, str], dict[int, dict[str, float]]] = {}  # (algo, arm) -> seed -> success by mode
     for run, r in results.items():
-        cfg = policies[run].meta["config"]
-        arm = str((cfg.get("extra") or {}).get("recipe") or policies[run].meta["algo"])
-        arms.setdefault((str(policies[run].meta["algo"]), arm), {})[int(cfg["seed"])] = {
+        arms.setdefault(arm_of[run], {})[int(policies[run].meta["config"]["seed"])] = {
             k: float(v[0].mean()) for k, v in r.items()}
     print()
     for (_, arm), seeds in arms.items():
@@ -127,7 +144,8 @@ def main() -> None:
         print(f"{arm}: selection minus the actor over seeds {', '.join(map(str, seeds))}: {points(gains)} points")
     mddpg = [seeds for (algo, _), seeds in arms.items() if algo == "mddpg"]
     ddpg = [seeds for (algo, _), seeds in arms.items() if algo == "ddpg"]
-    if len(mddpg) == 1 and len(ddpg) == 1:  # (one arm of each: the prediction ablation)
+    scenes = {str(p.meta["scene"]) for p in policies.values()}
+    if len(mddpg) == 1 and len(ddpg) == 1 and len(scenes) == 1:  # (one arm of each on one scene: the ablation)
         shared = sorted(set(mddpg[0]) & set(ddpg[0]))
         for mode in ("actor", "select"):
             if shared:

@@ -75,6 +75,7 @@ def test_a_selecting_policy_takes_the_best_rated_candidate_around_its_actors_act
     expected = cand[np.arange(len(x)), q.argmax(axis=1)]
     np.testing.assert_allclose(chosen.act_flat(x), expected, atol=1e-6)
     np.testing.assert_allclose(chosen.select(x), expected, atol=1e-6)
+    assert np.any(np.abs(expected - proposal).max(axis=1) > 1e-6)  # (some state's best is not the actor's own)
     assert np.all(chosen.q_values(x, chosen.act_flat(x)[:, None])[:, 0] >= q[:, 0] - 1e-9)  # never below the actor's
     # the file round-trips, and plays an episode through the public rollout
     path = chosen.save(tmp_path / "chosen.npz")
@@ -102,6 +103,14 @@ def test_selection_records_that_cannot_serve_are_refused_by_name(run):
     bad["critic.q1.w0"] = bad["critic.q1.w0"][:, :-1]
     with pytest.raises(PolicyFileError, match="critic head 1: layer 0 has weight"):
         LearnedPolicy(bad, chosen.meta)
+    with pytest.raises(PolicyFileError,
+                       match=r"arrays \['critic.q0.b0'.*are critic layers, but meta\['critic'\] names 0 heads"):
+        LearnedPolicy({k: v for k, v in base.arrays.items()},
+                      {k: v for k, v in base.meta.items() if k != "critic"})  # (critic layers no record names)
+    with pytest.raises(PolicyFileError, match=r"'select'\]\['spread'\] is -0.5"):
+        LearnedPolicy(chosen.arrays, {**chosen.meta, "select": {**chosen.meta["select"], "spread": -0.5}})
+    with pytest.raises(PolicyFileError, match=r"twin_min_weight'\] is 1.5"):
+        LearnedPolicy(base.arrays, {**base.meta, "critic": {"heads": 2, "twin_min_weight": 1.5}})
     with pytest.raises(PolicyFileError, match="NaN or infinite"):
         LearnedPolicy({**chosen.arrays, SELECT_OFFSETS: np.full((4, 2), np.nan, np.float32)}, chosen.meta)
     with pytest.raises(PolicyFileError, match="carries no critic to select actions by"):
@@ -138,7 +147,7 @@ def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
-    assert "mddpg: selection minus the actor over seeds 0:" in out
+    assert "deck1 mddpg: selection minus the actor over seeds 0:" in out
     assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
     assert out.count("minus its own forecast:") == 2
 
@@ -155,8 +164,10 @@ def test_forecast_reads_compares_a_runs_critic_and_actor_on_its_own_buffer(run, 
     rows = [line for line in done.stdout.splitlines() if line.startswith("| run | 300 |")]
     assert [r.split("|")[3].strip() for r in rows] == ["all", "encounters"]
     cells = [c.strip() for c in rows[0].strip("|").split("|")]
-    assert len(cells) == 11 and int(cells[3]) == 60
-    critic_shift, critic_cost, actor_shift, _, spread, heads_shift, heads_cost = map(float, cells[4:11])
+    assert len(cells) == 13 and int(cells[3]) == 60
+    critic_shift, critic_cost, actor_shift, _, spread, heads_shift, heads_cost, n_critic, n_actor = map(
+        float, cells[4:13])
+    assert 0.0 <= n_critic <= 2 * np.sqrt(2) and 0.0 <= n_actor <= 2 * np.sqrt(2)
     assert 0.0 <= critic_shift <= 2 * np.sqrt(2) and critic_cost >= 0.0 and actor_shift >= 0.0 and spread >= 0.0
     assert 0.0 <= heads_shift <= 2 * np.sqrt(2) and heads_cost >= 0.0
     assert 0 <= int(rows[1].strip("|").split("|")[3]) <= 60

@@ -60,6 +60,14 @@ def test_the_stationary_view_refuses_what_it_cannot_rebuild_and_encounters_need_
             forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
     finally:
         env.close()
+    env = DeckSimEnv("deck1", episode__predictor="mpc", episode__near_steps=4, episode__predicted_near=True)
+    try:
+        layout = env_layout(env)
+        assert "dynamic_near" not in layout.shapes
+        with pytest.raises(ValueError, match="`predicted_near` is observed without `dynamic_near`"):
+            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
+    finally:
+        env.close()
     env = DeckSimEnv("deck1", episode__predictor="none")
     try:
         layout = env_layout(env)
@@ -86,3 +94,18 @@ def test_the_stationary_view_refuses_what_it_cannot_rebuild_and_encounters_need_
     flat[:, sl["dynamic_obstacles"]] = now.reshape(4, -1)
     flat[:, sl["predicted"]] = forecast.reshape(4, -1)
     assert forecast_reads.encounters(flat, layout, near=30.0, moving=1.0).tolist() == [False, True, False, False]
+
+
+def test_the_noise_reference_moves_the_forecast_keys_alone():
+    env = DeckSimEnv("deck1", episode__predictor="mpc", **NEAR)
+    try:
+        layout = env_layout(env)
+        obs, _ = env.reset(seed=2)
+    finally:
+        env.close()
+    flat = np.stack([obs, obs])
+    noisy = forecast_reads.jittered_view(flat, layout, 1.0, np.random.default_rng(0))
+    sl = layout.slices()
+    moved = {k for k in layout.keys if not np.array_equal(noisy[:, sl[k]], flat[:, sl[k]])}
+    assert moved == {"predicted", "predicted_near"}
+    assert 0.8 < float(np.std(noisy[:, sl["predicted"]] - flat[:, sl["predicted"]])) < 1.2

@@ -182,9 +182,14 @@ class LearnedPolicy:
                                  for h in range(int(self.meta["critic"]["heads"]))] if "critic" in self.meta else []
             self.twin_min_weight = float(self.meta["critic"].get("twin_min_weight", 1.0)) if self.critic_heads \
                 else 1.0
+            if not 0.0 <= self.twin_min_weight <= 1.0:
+                raise ValueError(f"meta['critic']['twin_min_weight'] is {self.twin_min_weight}, not in [0, 1]")
             self.offsets = None
             if "select" in self.meta:
-                self.offsets = float(self.meta["select"]["spread"]) * _real(arrays, SELECT_OFFSETS)
+                spread = float(self.meta["select"]["spread"])
+                if not (math.isfinite(spread) and spread > 0):
+                    raise ValueError(f"meta['select']['spread'] is {spread}, not a positive number")
+                self.offsets = spread * _real(arrays, SELECT_OFFSETS)
                 if self.offsets.shape != (int(self.meta["select"]["candidates"]), 2):
                     raise ValueError(f"{SELECT_OFFSETS} has shape {self.offsets.shape}, meta['select'] asks for "
                                      f"{self.meta['select']['candidates']} candidates of 2")
@@ -202,8 +207,13 @@ class LearnedPolicy:
                 self._context, self._elements = set_indices(self.shapes, self.sets)
             except ValueError as err:
                 raise PolicyFileError(f"{source}: {err}") from err
+        heads = {f"{CRITIC_PREFIX}q{h}" for h in range(len(self.critic_heads))}  # (the critic's own layers)
         stray = sorted(k for k in arrays if re.fullmatch(r"(.+)\.[wb]\d+", k) and k.split(".")[0] not in self.sets
-                       and not k.startswith(CRITIC_PREFIX))
+                       and k.rpartition(".")[0] not in heads)
+        critic_stray = [k for k in stray if k.startswith(CRITIC_PREFIX)]
+        if critic_stray:
+            raise PolicyFileError(f"{source}: arrays {critic_stray[:5]} are critic layers, but meta['critic'] names "
+                                  f"{len(self.critic_heads)} heads")
         if stray:
             raise PolicyFileError(f"{source}: arrays {stray[:5]} are set encoders, but the file's format {fmt!r} "
                                   f"names the sets {sorted(self.sets)}")
