@@ -9,10 +9,10 @@ the critic is the run's own.
 
 Prints, per run, success with its Wilson 95 % interval and collisions, with and without selection, and the
 difference in success paired by episode with its 95 % interval (Student's t over the episodes); then, per arm (the
-scene and the runs' recipe, or their algorithm), the mean difference over its seeds with the 95 % interval over
-seeds; and where the runs form one MDDPG arm and one DDPG arm of one scene that share seeds, the difference
-MDDPG - DDPG paired by seed, with and without selection. Two runs of one arm with the same seed are refused. The
-machine and the load average go first.
+runs' recipe, or their algorithm, and its scene where the runs span several), the mean difference over its seeds
+with the 95 % interval over seeds; and where the runs form one MDDPG arm and one DDPG arm of one scene that share
+seeds, the difference MDDPG - DDPG paired by seed, with and without selection. Two runs of one arm with the same
+seed are refused. The machine and the load average go first.
 
     python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
         [--predictors stationary] [--workers N]
@@ -72,10 +72,12 @@ def points(values: list[float] | np.ndarray) -> str:
     return f"{100 * m:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f})"
 
 
-def arm_key(meta: dict) -> tuple[str, str]:
-    """(algorithm, arm label) of an actor record: the label is the scene and the run's recipe (or algorithm)."""
+def arm_key(meta: dict, scenes: int = 1) -> tuple[str, str]:
+    """(algorithm, arm label) of an actor record: the label is the run's recipe (or algorithm), with its scene when
+    the runs compared span ``scenes`` > 1."""
     cfg = meta["config"]
-    return str(meta["algo"]), f"{meta['scene']} {(cfg.get('extra') or {}).get('recipe') or meta['algo']}"
+    label = str((cfg.get("extra") or {}).get("recipe") or meta["algo"])
+    return str(meta["algo"]), label + (f" on {meta['scene']}" if scenes > 1 else "")
 
 
 def main() -> None:
@@ -101,7 +103,8 @@ def main() -> None:
             policies[run] = checkpoint_policy(run)
         except (CheckpointError, PolicyFileError, ValueError) as err:
             sys.exit(f"critic_select.py: {err}")
-    arm_of = {run: arm_key(policy.meta) for run, policy in policies.items()}
+    scenes = {str(p.meta["scene"]) for p in policies.values()}
+    arm_of = {run: arm_key(policy.meta, len(scenes)) for run, policy in policies.items()}
     seen: set[tuple[str, str, int]] = set()
     for run, key in arm_of.items():
         seed = int(policies[run].meta["config"]["seed"])
@@ -144,7 +147,6 @@ def main() -> None:
         print(f"{arm}: selection minus the actor over seeds {', '.join(map(str, seeds))}: {points(gains)} points")
     mddpg = [seeds for (algo, _), seeds in arms.items() if algo == "mddpg"]
     ddpg = [seeds for (algo, _), seeds in arms.items() if algo == "ddpg"]
-    scenes = {str(p.meta["scene"]) for p in policies.values()}
     if len(mddpg) == 1 and len(ddpg) == 1 and len(scenes) == 1:  # (one arm of each on one scene: the ablation)
         shared = sorted(set(mddpg[0]) & set(ddpg[0]))
         for mode in ("actor", "select"):

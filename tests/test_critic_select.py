@@ -147,7 +147,7 @@ def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
-    assert "deck1 mddpg: selection minus the actor over seeds 0:" in out
+    assert "\nmddpg: selection minus the actor over seeds 0:" in out
     assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
     assert out.count("minus its own forecast:") == 2
 
