@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from deck_sim.wrappers import DeckSimEnv
-from training.envs import env_layout
+from training.envs import env_layout, scene_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("forecast_reads", ROOT / "benchmarks" / "forecast_reads.py")
@@ -52,34 +52,20 @@ def test_the_stationary_view_is_what_the_stationary_predictor_observes(options):
     np.testing.assert_allclose(forecast_reads.stationary_view(given, layout, mover_frame), expected, atol=1e-5)
 
 
-def test_the_stationary_view_refuses_what_it_cannot_rebuild_and_encounters_need_a_near_moving_mover():
-    env = DeckSimEnv("deck1", episode__predictor="mpc", episode__predicted_approach=True)
-    try:
-        layout = env_layout(env)
-        with pytest.raises(ValueError, match="`predicted_approach` is observed"):
-            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
-    finally:
-        env.close()
-    env = DeckSimEnv("deck1", episode__predictor="mpc", episode__near_steps=4, episode__predicted_near=True)
-    try:
-        layout = env_layout(env)
-        assert "dynamic_near" not in layout.shapes
-        with pytest.raises(ValueError, match="`predicted_near` is observed without `dynamic_near`"):
-            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
-    finally:
-        env.close()
-    env = DeckSimEnv("deck1", episode__predictor="none")
-    try:
-        layout = env_layout(env)
-        with pytest.raises(ValueError, match="no forecast"):
-            forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
-    finally:
-        env.close()
-    env = DeckSimEnv("deck1", episode__predictor="mpc")
-    try:
-        layout = env_layout(env)
-    finally:
-        env.close()
+@pytest.mark.parametrize(("predictor", "options", "message"), [
+    ("mpc", {"episode__predicted_approach": True}, "`predicted_approach` is observed"),
+    ("mpc", {"episode__near_steps": 4, "episode__predicted_near": True},
+     "`predicted_near` is observed without `dynamic_near`"),
+    ("none", {}, "no forecast"),
+])
+def test_the_stationary_view_refuses_what_it_cannot_rebuild(predictor, options, message):
+    layout = scene_layout("deck1", predictor, options)
+    with pytest.raises(ValueError, match=message):
+        forecast_reads.stationary_view(np.zeros((1, layout.dim), np.float32), layout)
+
+
+def test_encounters_need_a_near_moving_mover():
+    layout = scene_layout("deck1", "mpc", {})
     n, horizon, _ = layout.shapes["predicted"]
     sl = layout.slices()
     flat = np.zeros((4, layout.dim), np.float32)
