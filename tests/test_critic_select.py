@@ -74,7 +74,6 @@ def test_a_selecting_policy_takes_the_best_rated_candidate_around_its_actors_act
     q = base.q_values(x, cand)
     expected = cand[np.arange(len(x)), q.argmax(axis=1)]
     np.testing.assert_allclose(chosen.act_flat(x), expected, atol=1e-6)
-    np.testing.assert_allclose(chosen.select(x), expected, atol=1e-6)
     assert np.any(np.abs(expected - proposal).max(axis=1) > 1e-6)  # (some state's best is not the actor's own)
     assert np.all(chosen.q_values(x, chosen.act_flat(x)[:, None])[:, 0] >= q[:, 0] - 1e-9)  # never below the actor's
     # the file round-trips, and plays an episode through the public rollout

@@ -54,7 +54,7 @@ MLP with ReLU hidden layers and one linear output over [the normalised observati
 smaller plus the rest times the larger (TD3's minimum at 1)."""
 SELECT_OFFSETS = "select.offsets"
 """With ``meta["select"]`` (``candidates``, ``spread``) and this (candidates, 2) array of offsets (unit normal
-draws, fixed in the file), the policy selects its action by its critic (``LearnedPolicy.select``)."""
+draws, fixed in the file), the policy selects its action by its critic (``LearnedPolicy.act_flat``)."""
 ENSEMBLE_FORMAT = "deck_sim.ensemble/1"
 """Several actors of format 1, 2 or 3 with a continuous head (``tanh`` or ``clip``) in one file, acting by the mean of
 their actions (``EnsemblePolicy``)."""
@@ -332,28 +332,18 @@ class LearnedPolicy:
         return np.concatenate(parts)
 
     def act_flat(self, x: np.ndarray) -> np.ndarray:
-        """Actions (..., 2) for flat observations (..., dim): the actor's, or the one its critic selects
-        (``select``) where the file asks for selection."""
+        """Actions (..., 2) for flat observations (..., dim): the actor's, or, where the file asks for selection
+        (``selects``), the one its critic selects: the actor proposes ``a``; the candidates are ``a`` and
+        ``clip(a + spread * offset_j, -1, 1)`` for each of the file's fixed offsets; the action is the candidate of
+        the largest Q (the heads combined as the run's TD target combined them), ``a`` itself on a tie."""
         x = self._normalised(x)
         proposal = self._actor(x)
         return proposal if self.offsets is None else self._select(x, proposal)
 
     @property
     def selects(self) -> bool:
-        """Whether the policy selects its actions by its critic (``select``)."""
+        """Whether the policy selects its actions by its critic (``act_flat``)."""
         return self.offsets is not None
-
-    def select(self, x: np.ndarray) -> np.ndarray:
-        """Critic-guided action selection for flat observations (..., dim): the actor proposes ``a``; the candidates
-        are ``a`` and ``clip(a + spread * offset_j, -1, 1)`` for each of the file's fixed offsets; the action is
-        the candidate of the largest Q (the heads combined as the run's TD target combined them), ``a`` itself on
-        a tie. ``PolicyFileError`` if the file carries no critic."""
-        if not self.critic_heads:
-            raise PolicyFileError(f"{self.source}: carries no critic to select actions by (meta['critic'])")
-        if self.offsets is None:
-            raise PolicyFileError(f"{self.source}: has no candidates to select among (meta['select'])")
-        x = self._normalised(x)
-        return self._select(x, self._actor(x))
 
     def q_values(self, x: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """The critic's Q (..., k) of flat observations (..., dim) with each of k actions (..., k, 2), the heads
@@ -428,7 +418,7 @@ class LearnedPolicy:
 
 def selecting(policy: LearnedPolicy, candidates: int = 64, spread: float = 0.3, seed: int = 0) -> LearnedPolicy:
     """A copy of ``policy`` (one actor that carries its critic) that selects its actions by that critic
-    (``LearnedPolicy.select``): ``candidates`` offsets drawn once from the unit normal (``seed``), stored in the
+    (``LearnedPolicy.act_flat``): ``candidates`` offsets drawn once from the unit normal (``seed``), stored in the
     copy's arrays, scaled by ``spread`` (action units; the action box is [-1, 1] per axis). Its ``meta`` records
     both. ``save`` writes it as an actor file that every tool reading actor files plays with selection."""
     if not isinstance(policy, LearnedPolicy):
