@@ -9,7 +9,7 @@ the critic is the run's own.
 
 Prints, per run, success with its Wilson 95 % interval and collisions, with and without selection, and the
 difference in success paired by episode with its 95 % interval (Student's t over the episodes); then, per arm (the
-runs' recipe, or their algorithm, and its scene where the runs span several), the mean difference over its seeds
+runs' recipe and algorithm, and its scene where the runs span several), the mean difference over its seeds
 with the 95 % interval over seeds; and where the runs form one MDDPG arm and one DDPG arm of one scene that share
 seeds, the difference MDDPG - DDPG paired by seed, with and without selection. Two runs of one arm with the same
 seed are refused. The machine and the load average go first.
@@ -73,11 +73,13 @@ def points(values: list[float] | np.ndarray) -> str:
 
 
 def arm_key(meta: dict, scenes: int = 1) -> tuple[str, str]:
-    """(algorithm, arm label) of an actor record: the label is the run's recipe (or algorithm), with its scene when
-    the runs compared span ``scenes`` > 1."""
-    cfg = meta["config"]
-    label = str((cfg.get("extra") or {}).get("recipe") or meta["algo"])
-    return str(meta["algo"]), label + (f" on {meta['scene']}" if scenes > 1 else "")
+    """(algorithm, arm label) of an actor record: the label is the run's recipe followed by its algorithm where the
+    recipe's name does not hold it (``deck2-reward mddpg``; ``reward-mddpg-with-close`` as it is), or the algorithm
+    alone without a recipe, with its scene when the runs compared span ``scenes`` > 1."""
+    cfg, algo = meta["config"], str(meta["algo"])
+    recipe = str((cfg.get("extra") or {}).get("recipe") or "")
+    label = recipe if algo in recipe.split("-") else f"{recipe} {algo}".strip()
+    return algo, label + (f" on {meta['scene']}" if scenes > 1 else "")
 
 
 def main() -> None:

@@ -146,7 +146,7 @@ def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
-    assert "\nmddpg: selection minus the actor over seeds 0:" in out
+    assert "\nmddpg: selection minus the actor over seeds 0:" in out  # (a run without a recipe: its algorithm)
     assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
     assert out.count("minus its own forecast:") == 2
 
@@ -185,3 +185,18 @@ def test_an_ensemble_of_selecting_members_averages_their_selected_actions_and_cl
     np.testing.assert_allclose(ensemble.act_flat(x), expected, atol=1e-12)
     again = load_actor(ensemble.save(tmp_path / "e.npz"))
     np.testing.assert_allclose(again.act_flat(x), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize(("recipe", "scenes", "label"), [
+    ("deck2-reward", 1, "deck2-reward ddpg"),  # (a recipe that trains several algorithms: both arms apart)
+    ("reward-ddpg-with-close", 1, "reward-ddpg-with-close"),
+    (None, 1, "ddpg"),
+    ("deck2-reward", 2, "deck2-reward ddpg on deck2"),
+])
+def test_an_arm_is_labelled_by_its_recipe_and_algorithm(recipe, scenes, label):
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from critic_select import arm_key
+
+    meta = {"algo": "ddpg", "scene": "deck2", "config": {"extra": {"recipe": recipe} if recipe else {}}}
+    assert arm_key(meta, scenes) == ("ddpg", label)
+    assert arm_key({**meta, "algo": "mddpg"}, scenes)[1] != label  # (MDDPG's arm of the same recipe differs)
