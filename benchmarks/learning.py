@@ -76,7 +76,8 @@ def read_eval(run: Path) -> list[dict[str, float]]:
         return [{k: float(v) if v else 0.0 for k, v in r.items()} for r in csv.DictReader(f)]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    """The command: ``argv`` its arguments (default: the command line's)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scene", default=None, help="the scene (default deck1, or the recipe's)")
     parser.add_argument("--recipe", default=None, help="arms are training algorithms of this recipe file")
@@ -100,7 +101,7 @@ def main() -> None:
     parser.add_argument("--shipped", action="store_true",
                         help="with --recipe: read a seed whose run folder is not here from the logs shipped beside "
                              "the recipe's agent in deck_sim/trained (same configuration), rather than train it")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     hear_ctrl_c()
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be at least 1, got {args.jobs}")
@@ -215,7 +216,8 @@ def main() -> None:
     axes[2].set(xlabel="environment steps", ylabel="mean episode reward (held-out)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="lower right")
+    if axes[0].get_legend_handles_labels()[0]:  # (no legend for arms with no evaluation yet)
+        axes[0].legend(loc="lower right")
     sizes = {int(x["episodes"]) for runs in curves.values() for r in runs for x in r}
     counts = " or ".join(str(n) for n in sorted(sizes))
     fig.suptitle(f"{name}: learning curves ({counts} held-out seed-500 episodes per point)")

@@ -17,6 +17,26 @@ ROOT = Path(__file__).resolve().parents[1]
 HEADER = "step,wall_s,episodes,success,collision,timeout,off_surface,reward\n"
 
 
+@pytest.fixture()
+def learning(monkeypatch):  # noqa: ANN201
+    """``benchmarks/learning.py`` as a module, its commands run in this process (those that test Ctrl-C, or train
+    in processes of their own, run as commands below), which keeps its own SIGINT handler."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("learning_report", ROOT / "benchmarks" / "learning.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "hear_ctrl_c", lambda: None)
+    return module
+
+
+def _report(learning, capsys, *args: str) -> str:  # noqa: ANN001
+    """What ``learning.py *args`` prints (it must succeed)."""
+    learning.main(list(args))
+    return capsys.readouterr().out
+
+
 def _run_folder(out: Path, name: str, successes: list[float]) -> None:
     run = out / name
     run.mkdir(parents=True)
@@ -24,18 +44,12 @@ def _run_folder(out: Path, name: str, successes: list[float]) -> None:
     (run / "eval.csv").write_text(HEADER + "".join(rows))
 
 
-def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_difference(tmp_path):
+def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_difference(tmp_path, learning, capsys):
     for seed, (m, d, q) in enumerate([(0.6, 0.5, 0.2), (0.7, 0.5, 0.3), (0.8, 0.6, 0.1)]):
         _run_folder(tmp_path, f"deck1-reward-mddpg-seed{seed}", [0.1, m])
         _run_folder(tmp_path, f"deck1-reward-ddpg-seed{seed}", [0.1, d])
         _run_folder(tmp_path, f"deck1-reward-dqn-seed{seed}", [0.1, q])
-    env = {**os.environ, "MUJOCO_GL": "disable"}
-    done = subprocess.run(
-        [sys.executable, "benchmarks/learning.py", "--recipe", "deck1-reward", "--no-train", "--out", str(tmp_path)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
-    )
-    assert done.returncode == 0, done.stderr
-    out = done.stdout
+    out = _report(learning, capsys, "--recipe", "deck1-reward", "--no-train", "--out", str(tmp_path))
     assert "unfinished runs, reported at their latest evaluation: deck1-reward-mddpg-seed0 (at step 100000)" in out
     # mean 70 %, sd 10 points, t(2) = 4.303: 70 +- 24.8
     assert "| mddpg | 3 | 100000 | 2.0 min | 100 | 70.0 % | 45.2 to 94.8 % | 30.0 % |" in out
@@ -47,18 +61,14 @@ def test_the_report_gives_intervals_over_seeds_and_the_paired_prediction_differe
     assert (tmp_path / "learning_deck1-reward.png").stat().st_size > 0
 
 
-def test_shipped_logs_give_the_documented_tables_of_runs_that_finished_elsewhere(tmp_path):
+def test_shipped_logs_give_the_documented_tables_of_runs_that_finished_elsewhere(tmp_path, learning, capsys):
     """``--shipped`` reads each seed whose run folder is not here from the logs shipped beside the recipe's agent:
     deck 1's reward-alone recipe, whose twelve runs no checkout holds, prints the tables of docs/benchmarks.md; a
     seed with a run of its own here, or another budget, is not read from them."""
-    env = {**os.environ, "MUJOCO_GL": "disable"}
 
     def report(*extra: str) -> str:
-        done = subprocess.run([sys.executable, "benchmarks/learning.py", "--recipe", "deck1-reward", "--no-train",
-                               "--shipped", "--out", str(tmp_path), *extra],
-                              cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, done.stderr
-        return done.stdout
+        return _report(learning, capsys, "--recipe", "deck1-reward", "--no-train", "--shipped", "--out",
+                       str(tmp_path), *extra)
 
     out = report()
     assert "deck1-reward-a2c-seed2: read from the shipped logs" in out and "unfinished" not in out
@@ -73,17 +83,13 @@ def test_shipped_logs_give_the_documented_tables_of_runs_that_finished_elsewhere
     assert "deck1-reward-mddpg-seed0: read from" not in out and "| mddpg | 2 |" in out
     assert "was trained with other total_steps; not read" in report("--arms", "ddpg", "--steps", "300000")
     assert "no shipped heldout_400.json of these episodes; left out" in report("--arms", "a2c", "--held-out", "400")
-    done = subprocess.run([sys.executable, "benchmarks/learning.py", "--scene", "deck1", "--no-train", "--shipped",
-                           "--out", str(tmp_path)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode != 0 and "--shipped reads the logs shipped with a recipe's agents" in done.stderr
+    with pytest.raises(SystemExit, match="--shipped reads the logs shipped with a recipe's agents"):
+        learning.main(["--scene", "deck1", "--no-train", "--shipped", "--out", str(tmp_path)])
 
 
-def test_unknown_recipe_is_refused_by_name(tmp_path):
-    done = subprocess.run(
-        [sys.executable, "benchmarks/learning.py", "--recipe", "harbour", "--no-train", "--out", str(tmp_path)],
-        cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=300,
-    )
-    assert done.returncode != 0 and "unknown recipe 'harbour'" in done.stderr
+def test_unknown_recipe_is_refused_by_name(tmp_path, learning):
+    with pytest.raises(SystemExit, match="unknown recipe 'harbour'"):
+        learning.main(["--recipe", "harbour", "--no-train", "--out", str(tmp_path)])
 
 
 def _learning(*args: str) -> subprocess.CompletedProcess:
@@ -91,13 +97,13 @@ def _learning(*args: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=600)
 
 
-def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_failed_run(tmp_path):
+def test_jobs_train_runs_in_parallel_processes_with_the_same_numbers_and_name_a_failed_run(tmp_path, learning, capsys):
     """A run trained in its own process (``--jobs 2``) gives the numbers of the same run trained in the command's
     process; a run that cannot resume (a corrupt checkpoint) fails alone, named with its log, and the other run
     finishes."""
     tiny = ["--steps", "300", "--eval-every", "150", "--eval-episodes", "1"]
-    one = _learning("--arms", "paper-mddpg", *tiny, "--out", str(tmp_path / "one"))
-    assert one.returncode == 0, one.stderr
+    assert "| paper-mddpg | 1 | 300 |" in _report(learning, capsys, "--arms", "paper-mddpg", *tiny, "--out",
+                                                       str(tmp_path / "one"))
     bad = tmp_path / "two" / "deck1-paper-ddpg-seed0"
     bad.mkdir(parents=True)
     (bad / "checkpoint.pt").write_bytes(b"not a checkpoint")
@@ -244,13 +250,7 @@ def test_ctrl_c_during_the_held_out_measurement_ends_the_command_and_names_the_w
     assert not list(run.glob("heldout_*.json"))
 
 
-def test_the_held_out_difference_adds_the_interval_over_seeds_and_episodes(capsys, monkeypatch):
-    import importlib.util
-
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("learning_report", ROOT / "benchmarks" / "learning.py")
-    learning = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(learning)
+def test_the_held_out_difference_adds_the_interval_over_seeds_and_episodes(capsys, learning):
     # three seeds each 5 points apart (85 against 80 of 100 held-out episodes): no width over seeds
     ddpg = [int(i < 80) for i in range(100)]
     mddpg = [int(i < 70 or 80 <= i < 95) for i in range(100)]
