@@ -8,10 +8,11 @@ same held-out episodes (``deck_sim.evaluation``: episode ``i`` reset with seed `
 ``docs/results.md``), which no pick has seen.
 
 Prints, per run, the step the best evaluation picked and each actor's success (Wilson 95 % interval) and collisions,
-and the final actor's success minus the picked one's, paired by episode, with its 95 % interval (Student's t over
-the episodes); a run whose best evaluation was its last has one actor, played once, a difference of zero. Then, per
-scene and over all the runs, the mean of that difference with its 95 % interval over the runs (Student's t) and how
-many runs it favours each way: the effect of the choice on a table of runs. The machine and the load average go
+and the final (and averaged) actor's success minus the picked one's, paired by episode, with its 95 % interval
+(Student's t over the episodes); actors with the same weights (a run whose best evaluation was its last) play once,
+a difference of zero. Then, for each of those differences, per scene and over all the runs, its mean with its 95 %
+interval over the runs (Student's t) and how many runs it favours each way: the effect of the choice on a table of
+runs. The machine and the load average go
 first.
 
     python benchmarks/actor_pick.py RUN [RUN ...] [--episodes 100] [--workers N]
@@ -78,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
     print(f"{args.episodes} held-out episodes per actor")
-    gains: dict[str, list[float]] = {}
+    gains: dict[str, dict[str, list[float]]] = {}  # actor -> scene -> its mean minus the picked one's, by run
     for run, found in actors.items():
         scene = str(found["final"].meta["scene"])
         picked_at = int(found["picked"].meta.get("trained_steps", -1))
@@ -91,16 +92,19 @@ def main(argv: list[str] | None = None) -> None:
             played[name] = played[same] if same else play(run / ACTORS[name], scene, args.episodes, args.workers)
             note = f" (the {same} actor's weights)" if same else ""
             print(f"  {name:<8} {rate(*played[name])}{note}", flush=True)
-        diff = played["final"][0].astype(float) - played["picked"][0].astype(float)
-        print(f"  final minus picked: {points(diff)} points")
-        gains.setdefault(scene, []).append(float(diff.mean()))
-    print()
-    groups = {**gains, "all": [g for scene_gains in gains.values() for g in scene_gains]} if len(gains) > 1 else gains
-    for name, values in groups.items():
-        ahead, behind = sum(g > 0 for g in values), sum(g < 0 for g in values)
-        runs = f"{len(values)} run" + ("s" if len(values) > 1 else "")
-        print(f"{name}: final minus picked over {runs}: {points(values)} points; final ahead in "
-              f"{ahead}, behind in {behind}, level in {len(values) - ahead - behind}")
+        for name in (n for n in found if n != "picked"):
+            diff = played[name][0].astype(float) - played["picked"][0].astype(float)
+            print(f"  {name} minus picked: {points(diff)} points")
+            gains.setdefault(name, {}).setdefault(scene, []).append(float(diff.mean()))
+    for name, by_scene in gains.items():
+        print()
+        groups = {**by_scene, "all": [g for values in by_scene.values() for g in values]} if len(by_scene) > 1 \
+            else by_scene
+        for group, values in groups.items():
+            ahead, behind = sum(g > 0 for g in values), sum(g < 0 for g in values)
+            runs = f"{len(values)} run" + ("s" if len(values) > 1 else "")
+            print(f"{group}: {name} minus picked over {runs}: {points(values)} points; {name} ahead in {ahead}, "
+                  f"behind in {behind}, level in {len(values) - ahead - behind}")
     print(f"load average at the end: {os.getloadavg()[0]:.1f} (1 min)")
 
 

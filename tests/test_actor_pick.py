@@ -25,11 +25,11 @@ def actor_pick():  # noqa: ANN201
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> Path:
-    """A seconds-long DDPG run on deck 1 evaluated at steps 0, 100, 200 and 300 on one episode, which it never
-    reaches: the first evaluation stays the best, so the picked actor is not the final one."""
+    """A seconds-long DDPG run on deck 1 with an averaged actor, evaluated at steps 0, 100, 200 and 300 on one
+    episode, which it never reaches: the first evaluation stays the best, so the picked actor is not the final one."""
     out = tmp_path_factory.mktemp("pick") / "run"
     cfg = short_config(algo="ddpg", total_steps=300, eval_every=100, eval_episodes=1, demo_episodes=0,
-                       pretrain_updates=0, bc_weight=0.0, expert_relabel=False)
+                       pretrain_updates=0, bc_weight=0.0, expert_relabel=False, actor_average=1e-3)
     trainer = Trainer(cfg, out, progress=False)
     trainer.train()
     trainer.close()
@@ -51,7 +51,9 @@ def test_the_final_and_picked_actors_play_the_same_episodes_and_their_difference
     assert out.count("  picked   success ") == 2 and out.count("  final    success ") == 2
     assert out.count("(the picked actor's weights)") == 1
     assert "final minus picked: +0.0 (each the same: no spread to give an interval) points" in out
-    assert "\ndeck1: final minus picked over 2 runs: " in out and "all:" not in out
+    assert out.count("  averaged success ") == 2 and out.count("averaged minus picked: ") == 2
+    assert "\ndeck1: final minus picked over 2 runs: " in out and "\ndeck1: averaged minus picked over 2 runs: " in out
+    assert "all:" not in out  # (one scene)
 
 
 def test_a_run_without_both_actors_or_with_a_fitted_final_actor_is_refused_by_name(run, actor_pick, tmp_path):
