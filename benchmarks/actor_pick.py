@@ -15,7 +15,10 @@ interval over the runs (Student's t) and how many runs it favours each way: the 
 runs. The machine and the load average go
 first.
 
-    python benchmarks/actor_pick.py RUN [RUN ...] [--episodes 100] [--workers N]
+    python benchmarks/actor_pick.py RUN [RUN ...] [--episodes 100] [--seed 100000] [--workers N]
+
+``--seed S`` plays episodes ``S`` to ``S + episodes - 1`` instead (below the training seeds; stream 500 is the one
+that picked): a stream apart from the held-out one, on which to choose a rule before the held-out episodes judge it.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import numpy as np  # noqa: E402
 from common import machine  # noqa: E402
 from critic_select import play, points, rate  # noqa: E402
 
+from deck_sim.evaluation import DEFAULT_SEED, TRAIN_SEED_BASE  # noqa: E402
 from deck_sim.policies import LearnedPolicy, PolicyFileError  # noqa: E402
 
 ACTORS = {"picked": "actor_best.npz", "final": "actor.npz", "averaged": "actor_avg.npz"}
@@ -66,10 +70,15 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path, help="finished DDPG or MDDPG run folders")
     parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per actor (default 100)")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                        help=f"seed of episode 0 (default {DEFAULT_SEED}: the held-out episodes)")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args(argv)
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
+    if args.seed < 0 or args.seed + args.episodes > TRAIN_SEED_BASE:
+        parser.error(f"--seed: episodes {args.seed} to {args.seed + args.episodes - 1} must lie in [0, "
+                     f"{TRAIN_SEED_BASE:,}), below the training seeds")
     if len(set(args.runs)) != len(args.runs):
         parser.error("a run folder is given twice")
     try:
@@ -78,7 +87,8 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(f"actor_pick.py: {err}")
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
-    print(f"{args.episodes} held-out episodes per actor")
+    where = "the held-out episodes" if args.seed == DEFAULT_SEED else "not the held-out episodes"
+    print(f"{args.episodes} episodes per actor from seed {args.seed} ({where})")
     gains: dict[str, dict[str, list[float]]] = {}  # actor -> scene -> its mean minus the picked one's, by run
     for run, found in actors.items():
         scene = str(found["final"].meta["scene"])
@@ -89,7 +99,8 @@ def main(argv: list[str] | None = None) -> None:
         played: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in found:
             same = next((other for other in played if same_weights(found[name], found[other])), None)
-            played[name] = played[same] if same else play(run / ACTORS[name], scene, args.episodes, args.workers)
+            played[name] = played[same] if same else play(run / ACTORS[name], scene, args.episodes, args.workers,
+                                                          args.seed)
             note = f" (the {same} actor's weights)" if same else ""
             print(f"  {name:<8} {rate(*played[name])}{note}", flush=True)
         for name in (n for n in found if n != "picked"):

@@ -39,17 +39,18 @@ from common import machine  # noqa: E402
 from forecast_use import with_predictor  # noqa: E402
 
 from deck_sim.control.prediction import PREDICTOR_NAMES  # noqa: E402
-from deck_sim.evaluation import EvalConfig, evaluate  # noqa: E402
+from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate  # noqa: E402
 from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
 from deck_sim.policies import PolicyFileError, selecting  # noqa: E402
 from training.checkpoints import CheckpointError, checkpoint_policy  # noqa: E402
 
 
-def play(file: Path, scene: str, episodes: int, workers: int | None) -> tuple[np.ndarray, np.ndarray]:
+def play(file: Path, scene: str, episodes: int, workers: int | None,
+         seed: int = DEFAULT_SEED) -> tuple[np.ndarray, np.ndarray]:
     """Per-episode success and collision (bool arrays, by episode index) of the actor file on ``episodes``
-    held-out episodes of ``scene``."""
+    episodes of ``scene`` from ``seed`` (default: the held-out episodes)."""
     res = evaluate(EvalConfig(agents=(f"run={file}",), scenes=(scene,), episodes=episodes, workers=workers,
-                              record="none"))
+                              record="none", seed=seed))
     rows = sorted(res.episodes, key=lambda r: int(r["seed"]))
     return (np.array([r["outcome"] == "goal" for r in rows]), np.array([r["outcome"] == "collision" for r in rows]))
 

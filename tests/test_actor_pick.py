@@ -71,3 +71,10 @@ def test_a_run_without_both_actors_or_with_a_fitted_final_actor_is_refused_by_na
         actor_pick.main([str(fitted), "--episodes", "2"])
     with pytest.raises(SystemExit):
         actor_pick.main([str(run), str(run)])
+
+
+def test_another_stream_than_the_held_out_one_is_named_as_such(run, actor_pick, capsys):
+    actor_pick.main([str(run), "--episodes", "2", "--workers", "1", "--seed", "3000"])
+    assert "2 episodes per actor from seed 3000 (not the held-out episodes)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # (past the evaluation seeds' range: refused by the harness's check)
+        actor_pick.main([str(run), "--episodes", "2", "--workers", "1", "--seed", "999999"])
