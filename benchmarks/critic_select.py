@@ -17,6 +17,9 @@ seed are refused. The machine and the load average go first.
     python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
         [--predictors stationary] [--workers N]
 
+With ``--averaged`` each run plays the slow average of its actor that its checkpoint keeps (``actor_average``), with
+the same critic, in place of its actor ("actor" in the output is then that average).
+
 With ``--predictors`` (other forecasts, e.g. ``stationary``: every mover held where it is now) each MDDPG run also
 plays both ways with that forecast in place of its own (``forecast_use.py``'s swap), and the difference to its own
 forecast, paired by episode, says how much of each way's success the forecast carries.
@@ -91,6 +94,8 @@ def main() -> None:
     parser.add_argument("--spread", type=float, default=0.3, help="their standard deviation, action units")
     parser.add_argument("--predictors", default="",
                         help="other forecasts an MDDPG run also plays with, comma-separated (e.g. stationary)")
+    parser.add_argument("--averaged", action="store_true",
+                        help="play each run's averaged actor (runs with actor_average) in place of its actor")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args()
     if args.episodes < 2:
@@ -103,7 +108,7 @@ def main() -> None:
     policies = {}
     for run in args.runs:
         try:
-            policies[run] = checkpoint_policy(run)
+            policies[run] = checkpoint_policy(run, averaged=args.averaged)
         except (CheckpointError, PolicyFileError, ValueError) as err:
             sys.exit(f"critic_select.py: {err}")
     scenes = {str(p.meta["scene"]) for p in policies.values()}
@@ -117,7 +122,7 @@ def main() -> None:
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
     print(f"selection: the actor's action and {args.candidates} candidates around it, spread {args.spread}; "
-          f"{args.episodes} held-out episodes per run")
+          f"{args.episodes} held-out episodes per run" + ("; each run's averaged actor" if args.averaged else ""))
     results: dict[Path, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i, run in enumerate(args.runs):

@@ -78,3 +78,21 @@ def test_another_stream_than_the_held_out_one_is_named_as_such(run, actor_pick, 
     assert "2 episodes per actor from seed 3000 (not the held-out episodes)" in capsys.readouterr().out
     with pytest.raises(SystemExit):  # (past the evaluation seeds' range: refused by the harness's check)
         actor_pick.main([str(run), "--episodes", "2", "--workers", "1", "--seed", "999999"])
+
+
+def test_the_checkpoints_averaged_actor_with_its_critic_selects_as_deck_sim_select_writes_it(run, tmp_path, capsys):
+    import numpy as np
+
+    from deck_sim.cli import main as cli
+    from training.checkpoints import checkpoint_policy
+
+    averaged, saved = checkpoint_policy(run, averaged=True), LearnedPolicy.load(run / "actor_avg.npz")
+    for key in saved.arrays:  # the average the run exported, and the critic it exported with it
+        np.testing.assert_array_equal(averaged.arrays[key], saved.arrays[key], err_msg=key)
+    assert averaged.meta["averaged"] == 1e-3 and averaged.meta["critic"] == saved.meta["critic"]
+    assert cli(["select", str(run), "--averaged", "--out", str(tmp_path / "s.npz"), "--candidates", "4"]) == 0
+    assert "the averaged actor and critic of" in capsys.readouterr().out
+    chosen = LearnedPolicy.load(tmp_path / "s.npz")
+    assert chosen.selects and np.array_equal(chosen.arrays["w0"], saved.arrays["w0"])
+    assert cli(["select", str(run / "actor.npz"), "--averaged", "--out", str(tmp_path / "f.npz")]) != 0
+    assert "--averaged takes a run folder" in capsys.readouterr().err and not (tmp_path / "f.npz").exists()

@@ -131,6 +131,8 @@ def test_deck_sim_select_writes_a_selecting_actor_from_a_file_or_a_run_folder(ru
         "trained_steps"]
     # the final actor.npz is the checkpoint's actor: the same weights
     np.testing.assert_array_equal(from_checkpoint.arrays["w0"], LearnedPolicy.load(run / "actor.npz").arrays["w0"])
+    assert cli(["select", str(run), "--averaged", "--out", str(tmp_path / "d.npz")]) != 0
+    assert "keeps no averaged actor (actor_average is 0.0)" in capsys.readouterr().err
     assert cli(["select", str(shipped_policy_path("mddpg", "deck1")), "--out", str(tmp_path / "c.npz")]) != 0
     assert "selection by the critic is for one actor" in capsys.readouterr().err
     assert not (tmp_path / "c.npz").exists()

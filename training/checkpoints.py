@@ -191,17 +191,21 @@ def load_run_agent(run_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], Tra
     return state, cfg, agent
 
 
-def checkpoint_policy(run_dir: str | os.PathLike[str]) -> LearnedPolicy:
-    """The actor of a DDPG or MDDPG run folder's checkpoint (``load_run_agent``) as a policy that carries the critic
-    of the same moment (``training.final_fit.save_actor``'s file, not written): its ``meta`` is the run's actor
-    record at the checkpoint's step. ``CheckpointError`` naming the folder when it holds no checkpoint;
-    ``ValueError`` when the critic has ``LayerNorm``, which the numpy policy does not run."""
+def checkpoint_policy(run_dir: str | os.PathLike[str], averaged: bool = False) -> LearnedPolicy:
+    """The actor of a DDPG or MDDPG run folder's checkpoint (``load_run_agent``; ``averaged``: the slow average of
+    its actor, a run with ``actor_average``) as a policy that carries the critic of the same moment
+    (``training.final_fit.save_actor``'s file, not written): its ``meta`` is the run's actor record at the
+    checkpoint's step. ``CheckpointError`` naming the folder when it holds no checkpoint; ``ValueError`` when the
+    critic has ``LayerNorm``, which the numpy policy does not run, or an averaged actor is asked of a run without
+    one."""
     from deck_sim.policies import LearnedPolicy, load_actor
     from training.envs import scene_layout
     from training.final_fit import actor_meta
 
     run_dir = Path(run_dir)
     state, cfg, agent = load_run_agent(run_dir)
+    if averaged and agent.actor_avg is None:
+        raise ValueError(f"{run_dir}: the run keeps no averaged actor (actor_average is {cfg.actor_average})")
     critic = agent.export_critic()
     if critic is None:
         raise ValueError(f"{run_dir}: the run's critic has LayerNorm (critic_layer_norm), which the numpy policy "
@@ -210,8 +214,9 @@ def checkpoint_policy(run_dir: str | os.PathLike[str]) -> LearnedPolicy:
     commit = str(load_actor(template).meta.get("git_commit", "unknown")) if template else "unknown"
     layout = scene_layout(cfg.scene, cfg.predictor, cfg.scene_overrides)
     meta = {**actor_meta(cfg, layout, agent, int(state["step"]), commit, bool(state.get("polished", False))),
-            "critic": critic[1]}
-    return LearnedPolicy({**agent.export_actor(), **critic[0]}, meta, source=f"{run_dir} (checkpoint)")
+            "critic": critic[1], **({"averaged": cfg.actor_average} if averaged else {})}
+    return LearnedPolicy({**agent.export_actor(averaged), **critic[0]}, meta,
+                         source=f"{run_dir} (checkpoint{', averaged actor' if averaged else ''})")
 
 
 def load_run_checkpoint(run_dir: str | os.PathLike[str]) -> dict[str, Any]:

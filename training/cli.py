@@ -131,8 +131,12 @@ def cmd_select(args: argparse.Namespace) -> int:
     if source.is_dir():  # a run folder: the actor and critic of its checkpoint, as the run last saved them
         from training.checkpoints import checkpoint_policy
 
-        policy = checkpoint_policy(source)
-        what = f"the actor and critic of {source}'s checkpoint at step {policy.meta['trained_steps']:,}"
+        policy = checkpoint_policy(source, averaged=args.averaged)
+        what = (f"the {'averaged ' if args.averaged else ''}actor and critic of {source}'s checkpoint at step "
+                f"{policy.meta['trained_steps']:,}")
+    elif args.averaged:
+        raise ValueError(f"--averaged takes a run folder, not an actor file ({source}); the averaged actor's own file "
+                         "is actor_avg.npz")
     else:
         policy = load_actor(source)
         what = str(source)
@@ -363,3 +367,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spread", type=float, default=0.3,
                    help="standard deviation of the candidates around the actor's action, action units (default 0.3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fixed offsets (default 0)")
+    p.add_argument("--averaged", action="store_true",
+                   help="with a run folder: its checkpoint's slow average of the actor (runs with actor_average)")
