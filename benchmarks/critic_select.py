@@ -42,7 +42,7 @@ from common import machine  # noqa: E402
 from forecast_use import with_predictor  # noqa: E402
 
 from deck_sim.control.prediction import PREDICTOR_NAMES  # noqa: E402
-from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate  # noqa: E402
+from deck_sim.evaluation import DEFAULT_SEED, TRAIN_SEED_BASE, EvalConfig, evaluate  # noqa: E402
 from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
 from deck_sim.policies import PolicyFileError, selecting  # noqa: E402
 from training.checkpoints import CheckpointError, checkpoint_policy  # noqa: E402
@@ -94,12 +94,17 @@ def main() -> None:
     parser.add_argument("--spread", type=float, default=0.3, help="their standard deviation, action units")
     parser.add_argument("--predictors", default="",
                         help="other forecasts an MDDPG run also plays with, comma-separated (e.g. stationary)")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                        help=f"seed of episode 0 (default {DEFAULT_SEED}: the held-out episodes)")
     parser.add_argument("--averaged", action="store_true",
                         help="play each run's averaged actor (runs with actor_average) in place of its actor")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args()
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
+    if args.seed < 0 or args.seed + args.episodes > TRAIN_SEED_BASE:
+        parser.error(f"--seed: episodes {args.seed} to {args.seed + args.episodes - 1} must lie in [0, "
+                     f"{TRAIN_SEED_BASE:,}), below the training seeds")
     swaps = [p for p in args.predictors.split(",") if p]
     bad = [p for p in swaps if p not in PREDICTOR_NAMES or p == "none"]
     if bad:
@@ -122,7 +127,9 @@ def main() -> None:
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
     print(f"selection: the actor's action and {args.candidates} candidates around it, spread {args.spread}; "
-          f"{args.episodes} held-out episodes per run" + ("; each run's averaged actor" if args.averaged else ""))
+          f"{args.episodes} " + ("held-out episodes" if args.seed == DEFAULT_SEED else
+                                 f"episodes from seed {args.seed} (not the held-out ones)") + " per run"
+          + ("; each run's averaged actor" if args.averaged else ""))
     results: dict[Path, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i, run in enumerate(args.runs):
@@ -131,8 +138,8 @@ def main() -> None:
             plain, chosen = Path(tmp) / f"a{i}.npz", Path(tmp) / f"s{i}.npz"
             policy.save(plain)
             selecting(policy, args.candidates, args.spread).save(chosen)
-            results[run] = {"actor": play(plain, scene, args.episodes, args.workers),
-                            "select": play(chosen, scene, args.episodes, args.workers)}
+            results[run] = {"actor": play(plain, scene, args.episodes, args.workers, args.seed),
+                            "select": play(chosen, scene, args.episodes, args.workers, args.seed)}
             (sa, ca), (ss, cs) = results[run]["actor"], results[run]["select"]
             print(f"\n{run} ({policy.meta['algo']}, scene {scene}, checkpoint at step {step:,})")
             print(f"  actor   {rate(sa, ca)}")
@@ -141,7 +148,7 @@ def main() -> None:
             for predictor in (swaps if policy.predictor != "none" else []):
                 for mode, file in (("actor", plain), ("select", chosen)):
                     swapped = with_predictor(file, predictor, Path(tmp) / f"{mode}{i}_{predictor}.npz")
-                    sp, cp = play(swapped, scene, args.episodes, args.workers)
+                    sp, cp = play(swapped, scene, args.episodes, args.workers, args.seed)
                     own = results[run][mode][0]
                     print(f"  {mode:<7} with {predictor} forecasts: {rate(sp, cp)}; minus its own forecast: "
                           f"{points(sp.astype(float) - own.astype(float))} points", flush=True)

@@ -141,12 +141,13 @@ def test_deck_sim_select_writes_a_selecting_actor_from_a_file_or_a_run_folder(ru
 def test_the_benchmark_compares_a_runs_actor_with_and_without_selection(run):
     done = subprocess.run(
         [sys.executable, "benchmarks/critic_select.py", str(run), "--episodes", "2", "--candidates", "4",
-         "--predictors", "stationary", "--workers", "1"],
+         "--predictors", "stationary", "--workers", "1", "--seed", "3000"],
         cwd=ROOT, env={**os.environ, "MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}, capture_output=True,
         text=True, timeout=600,
     )
     assert done.returncode == 0, done.stderr
     out = done.stdout
+    assert "2 episodes from seed 3000 (not the held-out ones) per run" in out
     assert "  actor   success " in out and "  select  success " in out and "minus the actor:" in out
     assert "\nmddpg: selection minus the actor over seeds 0:" in out  # (a run without a recipe: its algorithm)
     assert "  actor   with stationary forecasts: success " in out and "  select  with stationary forecasts: " in out
