@@ -12,8 +12,7 @@ and the final (and averaged) actor's success minus the picked one's, paired by e
 (Student's t over the episodes); actors with the same weights (a run whose best evaluation was its last) play once,
 a difference of zero. Then, for each of those differences, per scene and over all the runs, its mean with its 95 %
 interval over the runs (Student's t) and how many runs it favours each way: the effect of the choice on a table of
-runs. The machine and the load average go
-first.
+runs. The machine and the load average go first.
 
     python benchmarks/actor_pick.py RUN [RUN ...] [--episodes 100] [--seed 100000] [--workers N]
 
@@ -69,7 +68,7 @@ def main(argv: list[str] | None = None) -> None:
     """The command: ``argv`` its arguments (default: the command line's)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path, help="finished DDPG or MDDPG run folders")
-    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per actor (default 100)")
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per actor (default 100)")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
                         help=f"seed of episode 0 (default {DEFAULT_SEED}: the held-out episodes)")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
