@@ -33,9 +33,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from common import machine  # noqa: E402
-from critic_select import play, points, rate  # noqa: E402
+from critic_select import check_stream, play, points, rate  # noqa: E402
 
-from deck_sim.evaluation import DEFAULT_SEED, TRAIN_SEED_BASE  # noqa: E402
+from deck_sim.evaluation import DEFAULT_SEED  # noqa: E402
 from deck_sim.policies import LearnedPolicy, PolicyFileError  # noqa: E402
 
 ACTORS = {"picked": "actor_best.npz", "final": "actor.npz", "averaged": "actor_avg.npz"}
@@ -75,9 +75,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
-    if args.seed < 0 or args.seed + args.episodes > TRAIN_SEED_BASE:
-        parser.error(f"--seed: episodes {args.seed} to {args.seed + args.episodes - 1} must lie in [0, "
-                     f"{TRAIN_SEED_BASE:,}), below the training seeds")
+    check_stream(parser, args.seed, args.episodes)
     if len(set(args.runs)) != len(args.runs):
         parser.error("a run folder is given twice")
     try:

@@ -58,6 +58,13 @@ def play(file: Path, scene: str, episodes: int, workers: int | None,
     return (np.array([r["outcome"] == "goal" for r in rows]), np.array([r["outcome"] == "collision" for r in rows]))
 
 
+def check_stream(parser: argparse.ArgumentParser, seed: int, episodes: int) -> None:
+    """Refuse (``parser.error``) a ``--seed`` whose ``episodes`` episodes would reach the training seeds."""
+    if seed < 0 or seed + episodes > TRAIN_SEED_BASE:
+        parser.error(f"--seed: episodes {seed} to {seed + episodes - 1} must lie in [0, {TRAIN_SEED_BASE:,}), below "
+                     "the training seeds")
+
+
 def rate(success: np.ndarray, collided: np.ndarray) -> str:
     """``success 85.0% (76.7%-90.7%), collision 15.0%``."""
     k, n = int(success.sum()), len(success)
@@ -102,9 +109,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
-    if args.seed < 0 or args.seed + args.episodes > TRAIN_SEED_BASE:
-        parser.error(f"--seed: episodes {args.seed} to {args.seed + args.episodes - 1} must lie in [0, "
-                     f"{TRAIN_SEED_BASE:,}), below the training seeds")
+    check_stream(parser, args.seed, args.episodes)
     swaps = [p for p in args.predictors.split(",") if p]
     bad = [p for p in swaps if p not in PREDICTOR_NAMES or p == "none"]
     if bad:
