@@ -1,11 +1,11 @@
 """Which of a run's actors measures the run: its final weights, or those its best periodic evaluation picked?
 
 A finished DDPG or MDDPG run without the final cloning fit leaves ``actor.npz`` (its weights at the last step) and
-``actor_best.npz`` (its weights at its best evaluation on the seed-500 stream, which ``training.final_fit
-.shipped_actor`` ships and ``training.heldout`` measures), and with ``actor_average`` also ``actor_avg.npz``. Picking
-the best of some twenty evaluations of 100 episodes picks noise as well as skill. Here each run's actors play the
-same held-out episodes (``deck_sim.evaluation``: episode ``i`` reset with seed ``DEFAULT_SEED + i``, the episodes of
-``docs/results.md``), which no pick has seen.
+``actor_best.npz`` (its weights at its best evaluation on the seed-500 stream, which
+``training.final_fit.shipped_actor`` ships and ``training.heldout`` measures), and with ``actor_average`` also
+``actor_avg.npz``. Picking the best of a run's evaluations of 100 episodes (twenty in a 1,000,000-step run) picks
+noise as well as skill. Here each run's actors play the same held-out episodes (``deck_sim.evaluation``: episode
+``i`` reset with seed ``DEFAULT_SEED + i``, the episodes of ``docs/results.md``), which no pick has seen.
 
 Prints, per run, the step the best evaluation picked and each actor's success (Wilson 95 % interval) and collisions,
 and the final (and averaged) actor's success minus the picked one's, paired by episode, with its 95 % interval
@@ -16,8 +16,8 @@ runs. The machine and the load average go first.
 
     python benchmarks/actor_pick.py RUN [RUN ...] [--episodes 100] [--seed 100000] [--workers N]
 
-``--seed S`` plays episodes ``S`` to ``S + episodes - 1`` instead (below the training seeds; stream 500 is the one
-that picked): a stream apart from the held-out one, on which to choose a rule before the held-out episodes judge it.
+``--seed S`` plays episodes ``S`` to ``S + episodes - 1`` instead (below the held-out ones and apart from the
+periodic evaluations' that picked): a stream on which to choose a rule before the held-out episodes judge it.
 """
 
 from __future__ import annotations
@@ -59,9 +59,26 @@ def run_actors(run: Path) -> dict[str, LearnedPolicy]:
 
 
 def same_weights(a: LearnedPolicy, b: LearnedPolicy) -> bool:
-    """Whether two actor files hold the same network and normaliser (their records aside)."""
-    keys = {k for k in a.arrays if k != "meta"}
-    return keys == {k for k in b.arrays if k != "meta"} and all(np.array_equal(a.arrays[k], b.arrays[k]) for k in keys)
+    """Whether two actor files hold the same arrays: network, normaliser and the critic they carry (their records
+    aside)."""
+    return a.arrays.keys() == b.arrays.keys() and all(np.array_equal(a.arrays[k], b.arrays[k]) for k in a.arrays)
+
+
+def summary(gains: dict[str, dict[str, list[float]]]) -> list[str]:
+    """The lines that sum up ``gains`` (actor name -> scene -> each run's success minus the picked actor's, as
+    fractions): per actor, a blank line, then per scene, and over all runs where there are several scenes, the mean
+    in points with its 95 % interval over the runs and how many runs it favours each way."""
+    lines = []
+    for name, by_scene in gains.items():
+        lines.append("")
+        groups = {**by_scene, "all": [g for values in by_scene.values() for g in values]} if len(by_scene) > 1 \
+            else by_scene
+        for group, values in groups.items():
+            ahead, behind = sum(g > 0 for g in values), sum(g < 0 for g in values)
+            runs = f"{len(values)} run" + ("s" if len(values) > 1 else "")
+            lines.append(f"{group}: {name} minus picked over {runs}: {points(values)} points; {name} ahead in "
+                         f"{ahead}, behind in {behind}, level in {len(values) - ahead - behind}")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -75,13 +92,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
-    check_stream(parser, args.seed, args.episodes)
     if len(set(args.runs)) != len(args.runs):
         parser.error("a run folder is given twice")
     try:
         actors = {run: run_actors(run) for run in args.runs}
     except (ValueError, PolicyFileError) as err:
         sys.exit(f"actor_pick.py: {err}")
+    check_stream(parser, args.seed, args.episodes, [found["final"].meta for found in actors.values()])
     print(machine())
     print(f"load average at the start: {os.getloadavg()[0]:.1f} (1 min)")
     where = "the held-out episodes" if args.seed == DEFAULT_SEED else "not the held-out episodes"
@@ -104,15 +121,8 @@ def main(argv: list[str] | None = None) -> None:
             diff = played[name][0].astype(float) - played["picked"][0].astype(float)
             print(f"  {name} minus picked: {points(diff)} points")
             gains.setdefault(name, {}).setdefault(scene, []).append(float(diff.mean()))
-    for name, by_scene in gains.items():
-        print()
-        groups = {**by_scene, "all": [g for values in by_scene.values() for g in values]} if len(by_scene) > 1 \
-            else by_scene
-        for group, values in groups.items():
-            ahead, behind = sum(g > 0 for g in values), sum(g < 0 for g in values)
-            runs = f"{len(values)} run" + ("s" if len(values) > 1 else "")
-            print(f"{group}: {name} minus picked over {runs}: {points(values)} points; {name} ahead in {ahead}, "
-                  f"behind in {behind}, level in {len(values) - ahead - behind}")
+    for line in summary(gains):
+        print(line)
     print(f"load average at the end: {os.getloadavg()[0]:.1f} (1 min)")
 
 

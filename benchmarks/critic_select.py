@@ -58,11 +58,26 @@ def play(file: Path, scene: str, episodes: int, workers: int | None,
     return (np.array([r["outcome"] == "goal" for r in rows]), np.array([r["outcome"] == "collision" for r in rows]))
 
 
-def check_stream(parser: argparse.ArgumentParser, seed: int, episodes: int) -> None:
-    """Refuse (``parser.error``) a ``--seed`` whose ``episodes`` episodes would reach the training seeds."""
+def check_stream(parser: argparse.ArgumentParser, seed: int, episodes: int, metas: list[dict]) -> None:
+    """Refuse (``parser.error``) a ``--seed`` whose ``episodes`` episodes would reach the training seeds (as the
+    evaluation harness would, before anything is played), or, for a stream other than the held-out one, reach into
+    the held-out episodes or into the periodic-evaluation stream that picked an actor of the runs whose actor
+    records are ``metas`` (their ``config``'s ``eval_seed`` and ``eval_episodes``)."""
+    last = seed + episodes - 1
     if seed < 0 or seed + episodes > TRAIN_SEED_BASE:
-        parser.error(f"--seed: episodes {seed} to {seed + episodes - 1} must lie in [0, {TRAIN_SEED_BASE:,}), below "
-                     "the training seeds")
+        parser.error(f"--seed: episodes {seed} to {last} must lie in [0, {TRAIN_SEED_BASE:,}), below the training "
+                     "seeds")
+    if seed == DEFAULT_SEED:
+        return
+    if last >= DEFAULT_SEED:
+        parser.error(f"--seed: episodes {seed} to {last} reach the held-out episodes (from {DEFAULT_SEED:,}); another "
+                     "stream lies below them")
+    for meta in metas:
+        config = meta.get("config") or {}
+        first, count = int(config.get("eval_seed", 500)), int(config.get("eval_episodes", 0))
+        if seed <= first + count - 1 and first <= last:
+            parser.error(f"--seed: episodes {seed} to {last} overlap the periodic evaluations' episodes {first} to "
+                         f"{first + count - 1}, which picked the runs' best actors")
 
 
 def rate(success: np.ndarray, collided: np.ndarray) -> str:
@@ -102,14 +117,14 @@ def main() -> None:
     parser.add_argument("--predictors", default="",
                         help="other forecasts an MDDPG run also plays with, comma-separated (e.g. stationary)")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
-                        help=f"seed of episode 0 (default {DEFAULT_SEED}: the held-out episodes)")
+                        help=f"seed of episode 0 (default {DEFAULT_SEED}: the held-out episodes; another stream lies "
+                             "below them, apart from the periodic evaluations')")
     parser.add_argument("--averaged", action="store_true",
                         help="play each run's averaged actor (runs with actor_average) in place of its actor")
     parser.add_argument("--workers", type=int, default=None, help="evaluation processes (default: the CPU count)")
     args = parser.parse_args()
     if args.episodes < 2:
         parser.error(f"--episodes must be at least 2, got {args.episodes}")
-    check_stream(parser, args.seed, args.episodes)
     swaps = [p for p in args.predictors.split(",") if p]
     bad = [p for p in swaps if p not in PREDICTOR_NAMES or p == "none"]
     if bad:
@@ -121,6 +136,7 @@ def main() -> None:
             policies[run] = checkpoint_policy(run, averaged=args.averaged)
         except (CheckpointError, PolicyFileError, ValueError) as err:
             sys.exit(f"critic_select.py: {err}")
+    check_stream(parser, args.seed, args.episodes, [p.meta for p in policies.values()])
     scenes = {str(p.meta["scene"]) for p in policies.values()}
     arm_of = {run: arm_key(policy.meta, len(scenes)) for run, policy in policies.items()}
     seen: set[tuple[str, str, int]] = set()

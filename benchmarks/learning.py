@@ -225,6 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     plot = Path(args.plot) if args.plot else Path(args.out) / f"learning_{recipe.name if recipe else scene}.png"
     plot.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(plot, dpi=110)
+    plt.close(fig)
     print(f"wrote {plot}")
 
 

@@ -196,8 +196,8 @@ def test_an_ensemble_of_selecting_members_averages_their_selected_actions_and_cl
     (None, 1, "ddpg"),
     ("deck2-reward", 2, "deck2-reward ddpg on deck2"),
 ])
-def test_an_arm_is_labelled_by_its_recipe_and_algorithm(recipe, scenes, label):
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+def test_an_arm_is_labelled_by_its_recipe_and_algorithm(recipe, scenes, label, monkeypatch):
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
     from critic_select import arm_key
 
     meta = {"algo": "ddpg", "scene": "deck2", "config": {"extra": {"recipe": recipe} if recipe else {}}}

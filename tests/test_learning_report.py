@@ -24,6 +24,8 @@ def learning(monkeypatch):  # noqa: ANN201
     import importlib.util
 
     monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    for name, value in (("MUJOCO_GL", "disable"), ("OMP_NUM_THREADS", "1")):  # (the script sets them if unset)
+        monkeypatch.setenv(name, os.environ.get(name, value))
     spec = importlib.util.spec_from_file_location("learning_report", ROOT / "benchmarks" / "learning.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
