@@ -15,7 +15,11 @@ seeds, the difference MDDPG - DDPG paired by seed, with and without selection. T
 seed are refused. The machine and the load average go first.
 
     python benchmarks/critic_select.py RUN [RUN ...] [--episodes 100] [--candidates 64] [--spread 0.3]
-        [--predictors stationary] [--workers N]
+        [--predictors stationary] [--averaged] [--seed 100000] [--workers N]
+
+``--seed S`` plays episodes ``S`` to ``S + episodes - 1`` instead of the held-out ones: a stream below them and apart
+from the periodic evaluations' (``check_stream``), on which to decide whether selection is to be used before the
+held-out episodes judge it.
 
 With ``--averaged`` each run plays the slow average of its actor that its checkpoint keeps (``actor_average``), with
 the same critic, in place of its actor ("actor" in the output is then that average).
@@ -46,6 +50,7 @@ from deck_sim.evaluation import DEFAULT_SEED, TRAIN_SEED_BASE, EvalConfig, evalu
 from deck_sim.metrics import mean_interval, rate_interval  # noqa: E402
 from deck_sim.policies import PolicyFileError, selecting  # noqa: E402
 from training.checkpoints import CheckpointError, checkpoint_policy  # noqa: E402
+from training.config import TrainConfig  # noqa: E402
 
 
 def play(file: Path, scene: str, episodes: int, workers: int | None,
@@ -74,7 +79,8 @@ def check_stream(parser: argparse.ArgumentParser, seed: int, episodes: int, meta
                      "stream lies below them")
     for meta in metas:
         config = meta.get("config") or {}
-        first, count = int(config.get("eval_seed", 500)), int(config.get("eval_episodes", 0))
+        first = int(config.get("eval_seed", TrainConfig.eval_seed))
+        count = int(config.get("eval_episodes", TrainConfig.eval_episodes))
         if seed <= first + count - 1 and first <= last:
             parser.error(f"--seed: episodes {seed} to {last} overlap the periodic evaluations' episodes {first} to "
                          f"{first + count - 1}, which picked the runs' best actors")
