@@ -7,7 +7,9 @@ full report (JSON, CSV, Markdown, MCAP logs of the first two episodes of every s
 then ``docs/results.md`` with: the command and commit it came from, the machine; first the paper's comparison, every
 run of the scenes' reward-alone recipes (``training/recipes/<scene>-reward.toml``, run folders in ``--runs`` or the
 logs shipped with a reward-regime actor) measured seed by seed on the same held-out episodes (``training.heldout``),
-as means over seeds with 95 % intervals over seeds and paired differences; MDDPG against DDPG in the regimes that
+as means over seeds with 95 % intervals over seeds and paired differences, then the same MDDPG and DDPG runs acting
+through their averaged actors and their own critics' choice (``training.final_fit.PLAYS``, where the recipe keeps
+an averaged actor); MDDPG against DDPG in the regimes that
 also learn from a planner (``<scene>-planner`` and ``<scene>`` recipes) measured the same way (in both, a run trained
 with another configuration than its recipe gives now is named with the command that retrains it, and not counted);
 then how many
@@ -222,14 +224,16 @@ def _off_recipe(folder: Path, recipe_name_: str, algo: str, seed: int) -> list[s
 
 
 def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers: int | None,
-                algos: tuple[str, ...] | None = None) -> dict[str, list[dict]]:
+                algos: tuple[str, ...] | None = None, play: str = "shipped") -> dict[str, list[dict]]:
     """Every run of ``scene``'s recipe of ``regime`` (``regime_agents``; ``algos`` of it, default all) trained with
     the configuration the recipe gives it now, each seed's actor on ``episodes`` held-out episodes
     (``training.heldout``; cached in the run folder ``<runs_dir>/<recipe>-<algo>-seed<k>``, else read from the logs
     ``scripts/train_shipped.py`` ships beside the regime's actor). A run trained with another configuration (the
     recipe changed since) is not counted (``off_recipe_runs`` names it). ``{algo: [record per seed]}``, each
     record with ``seed``, ``steps`` (trained so far), ``finished`` and ``wall_s`` (training) added; empty if the
-    scene has no such recipe or no run."""
+    scene has no such recipe or no run. ``play`` (``training.final_fit.PLAYS``): how each run acts, its shipped
+    actor or, with ``averaged-select``, its averaged actor choosing by its own critic (a finished run that keeps
+    one; others are left out)."""
     from training.heldout import HeldOutError, held_out, shipped_held_out
 
     out: dict[str, list[dict]] = {}
@@ -240,11 +244,11 @@ def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers:
                 continue
             if own:
                 try:
-                    record = held_out(folder, episodes, workers, per_episode=True)
+                    record = held_out(folder, episodes, workers, per_episode=True, play=play)
                 except HeldOutError:
                     continue
             else:
-                record = shipped_held_out(folder, episodes)
+                record = shipped_held_out(folder, episodes, play)
             if record is not None and (folder / "eval.csv").exists():
                 run = folder
                 break
@@ -303,12 +307,14 @@ def _interval(values: list[float], scale: float = 100.0, spec: str = ".1f") -> s
 
 def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,
                    scenes: list[str], off: dict[str, dict[str, list[OffRecipe]]] | None = None,
-                   ) -> list[str]:
+                   selecting: dict[str, dict[str, list[dict]]] | None = None) -> list[str]:
     """The paper's comparison: the agents of the reward-alone recipes, each seed on the held-out episodes, mean over
     seeds with its 95 % interval over seeds, beside the paper's Tables 1-3; the prediction ablation paired by seed;
     for each of ``scenes`` with a reward-alone recipe, a line naming its agents without any run (``lacking_lines``),
     all of them where the scene has no run at all, and one naming its runs left out as trained with another
-    configuration than the recipe gives now (``off``: ``{scene: off_recipe_runs}``)."""
+    configuration than the recipe gives now (``off``: ``{scene: off_recipe_runs}``); then the same MDDPG and DDPG
+    runs acting through their own critics (``selecting``: ``{scene: regime_runs(..., play="averaged-select")}``,
+    ``selecting_section``)."""
     return [
         "The paper's protocol: reinforcement learning from the reward alone (no demonstrations, no planner labels, no "
         "cloning, no final fit), `training/recipes/<scene>-reward.toml`, one run per training seed, at most "
@@ -322,7 +328,49 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         *[line for scene in scenes if regime_agents(scene, "reward") is not None
           for line in lacking_lines(scene, "reward", reward.get(scene, {}), tuple(recipe_seeds(scene, "reward")),
                                     episodes, (off or {}).get(scene))],
+        *([] if selecting is None else ["", *selecting_section(selecting, recipe_steps, episodes, scenes)]),
     ]
+
+
+def keeps_average(scene: str) -> bool:
+    """Whether ``scene``'s reward-alone recipe keeps the slow average of MDDPG's actor (``actor_average``), which
+    play ``averaged-select`` needs."""
+    recipe = load_recipe(regime_recipe(scene, "reward"))
+    return recipe.config("mddpg", recipe.seeds("mddpg")[0]).actor_average > 0
+
+
+def selecting_section(selecting: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,
+                      scenes: list[str]) -> list[str]:
+    """The reward-alone MDDPG and DDPG runs of ``selecting`` (``{scene: {algo: records}}`` of ``regime_runs`` with
+    play ``averaged-select``) as the reward section's table gives them, each acting through its averaged actor and
+    its own critic's choice; a line for each of ``scenes`` whose recipe keeps no averaged actor, or whose runs have
+    none yet."""
+    from training.final_fit import SELECT_CANDIDATES, SELECT_SPREAD
+
+    lines = [
+        "### The same runs, acting through their own critics",
+        "",
+        "Each MDDPG and DDPG run of a recipe that keeps the slow average of its actor (`actor_average`) acts here "
+        "through it: the averaged actor (`actor_avg.npz`, as the run ended) proposes an action, and the run's own "
+        f"critic chooses among it and {SELECT_CANDIDATES} fixed candidates around it ({SELECT_SPREAD} action units; "
+        "play `averaged-select` of `training.final_fit.PLAYS`). Both networks learnt from the run's reward alone. "
+        "This way of acting was chosen on other episodes (the seed-2000 stream of "
+        "[benchmarks.md](benchmarks.md#critic_selectpy)); the figures are the same held-out episodes as above.",
+        "",
+    ]
+    if selecting:
+        lines += seed_table(selecting, recipe_steps, paper=True,
+                            seeds_of={scene: {a: k for a, k in recipe_seeds(scene, "reward").items()
+                                              if a in ("mddpg", "ddpg")} for scene in selecting})
+    for scene in scenes:
+        if regime_agents(scene, "reward") is None or scene in selecting:
+            continue
+        lines.append(f"- {scene}: " + ("no finished run with an averaged actor in this checkout: `python "
+                                       f"benchmarks/learning.py --recipe {regime_recipe(scene, 'reward')} --arms "
+                                       "mddpg,ddpg` trains them." if keeps_average(scene) else
+                                       f"`{regime_recipe(scene, 'reward')}` keeps no averaged actor "
+                                       "(`actor_average`), so its runs act only as above."))
+    return lines
 
 
 def regime_section(found: dict[str, dict[str, dict[str, list[dict]]]], recipe_steps: dict[str, dict[str, int]],
@@ -521,38 +569,43 @@ def ablation_lines(scene: str, algos: dict[str, list[dict]], paper: bool = True)
 
 
 def targets(res, reward: dict[str, dict[str, list[dict]]],  # noqa: ANN001 - EvalResults
-            scenes: tuple[str, ...] = ("deck1", "deck2", "square")) -> list[str]:
+            scenes: tuple[str, ...] = ("deck1", "deck2", "square"),
+            selecting: dict[str, dict[str, list[dict]]] | None = None) -> list[str]:
     """The paper's MDDPG figures and the targets of the reward regime (90 % on deck 1, 80 % on deck 2), checked
-    against the reward-alone runs (the paper's protocol) of ``scenes``; the square, which the paper does not report,
-    with its figure and no target; then the shipped MDDPG, which names its regime."""
+    against the reward-alone runs (the paper's protocol) of ``scenes``, and against the same runs acting through
+    their own critics where ``selecting`` has them (``selecting_section``); the square, which the paper does not
+    report, with its figure and no target; then the shipped MDDPG, which names its regime."""
     out = []
     for scene, goal in (("deck1", 0.90), ("deck2", 0.80), ("square", None)):
         if scene not in scenes:
             continue
-        recs = reward.get(scene, {}).get("mddpg")
         paper = PAPER["success"].get(scene, {}).get("mddpg")
         against = (f"target {100 * goal:.0f} %, the paper {100 * paper:.0f} %" if goal is not None else
                    "no target: the paper reports the decks only")
-        if not recs:
-            out.append(f"- MDDPG from the reward alone on {scene}: no run yet ({against}).")
-            continue
-        finished = [r for r in recs if r["finished"]]
-        counts = f"{len(recs)} seed(s), {len(finished)} finished"
-        undecided = f"not decided: {counts}; at least 3 finished needed"
-        if not finished:
-            out.append(f"- MDDPG from the reward alone on {scene}: no seed finished yet ({against}): "
-                       f"{undecided if goal is not None else counts}.")
-            continue
-        m = float(np.mean([r["success"] for r in finished]))  # (a run still training is not at the budget)
-        if len(finished) == len(recs) and len(recs) >= 3:
-            verdict, which = ("met" if goal is not None and m >= goal else "not met"), f"{len(recs)} seed(s)"
-        else:
-            verdict, which = undecided, f"the {len(finished)} finished seed(s) of {len(recs)}"
-        if goal is None:
-            out.append(f"- MDDPG from the reward alone on {scene}: {100 * m:.1f} % (mean of {which}; {against}).")
-        else:
-            out.append(f"- MDDPG from the reward alone on {scene}: {100 * m:.1f} % (mean of {which}) against "
-                       f"the target of {100 * goal:.0f} % and the paper's {100 * paper:.0f} %: {verdict}.")
+        for found, how in ((reward, ""), (selecting or {}, ", acting through its critic")):
+            recs = found.get(scene, {}).get("mddpg")
+            what = f"MDDPG from the reward alone on {scene}{how}"
+            if not recs:
+                if not how:  # (the runs acting through their critics are named in their own section)
+                    out.append(f"- {what}: no run yet ({against}).")
+                continue
+            finished = [r for r in recs if r["finished"]]
+            counts = f"{len(recs)} seed(s), {len(finished)} finished"
+            undecided = f"not decided: {counts}; at least 3 finished needed"
+            if not finished:
+                out.append(f"- {what}: no seed finished yet ({against}): "
+                           f"{undecided if goal is not None else counts}.")
+                continue
+            m = float(np.mean([r["success"] for r in finished]))  # (a run still training is not at the budget)
+            if len(finished) == len(recs) and len(recs) >= 3:
+                verdict, which = ("met" if goal is not None and m >= goal else "not met"), f"{len(recs)} seed(s)"
+            else:
+                verdict, which = undecided, f"the {len(finished)} finished seed(s) of {len(recs)}"
+            if goal is None:
+                out.append(f"- {what}: {100 * m:.1f} % (mean of {which}; {against}).")
+            else:
+                out.append(f"- {what}: {100 * m:.1f} % (mean of {which}) against the target of {100 * goal:.0f} % "
+                           f"and the paper's {100 * paper:.0f} %: {verdict}.")
     for scene in ("deck1", "deck2"):
         try:
             m = res.summary(scene, "mddpg")
@@ -621,6 +674,13 @@ def main() -> None:
         if regime_agents(scene, "reward") is not None:
             reward_off[scene] = off_recipe_runs(scene, "reward", Path(args.runs), found)
     recipe_steps = {scene: load_recipe(regime_recipe(scene, "reward")).steps("mddpg") for scene in reward}
+    selecting = {}  # the same MDDPG and DDPG runs, each acting through its averaged actor and its own critic
+    for scene in reward:
+        if keeps_average(scene):
+            print(f"{scene}: the reward-alone runs acting through their critics on held-out episodes", file=sys.stderr)
+            if found := regime_runs(scene, "reward", Path(args.runs), args.episodes, args.workers, ("mddpg", "ddpg"),
+                                    play="averaged-select"):
+                selecting[scene] = found
     other_regimes: dict[str, dict[str, dict[str, list[dict]]]] = {}
     other_off: dict[str, dict[str, dict[str, list[OffRecipe]]]] = {}
     for regime in (r for r in REGIMES if r != "reward"):  # (the reward regime has its own section)
@@ -714,7 +774,7 @@ def main() -> None:
         "",
         "## The paper's comparison: learnt from the reward alone",
         "",
-        *(reward_section(reward, recipe_steps, args.episodes, scenes, reward_off)
+        *(reward_section(reward, recipe_steps, args.episodes, scenes, reward_off, selecting)
           if reward or any(reward_off.values()) else [
             "No run of a reward-alone recipe in this checkout: `python benchmarks/learning.py --recipe deck1-reward` "
             "(and `deck2-reward`, `square-reward`) trains them."]),
@@ -733,7 +793,7 @@ def main() -> None:
         "",
         "## Targets",
         "",
-        *targets(res, reward, tuple(scenes)),
+        *targets(res, reward, tuple(scenes), selecting),
         "",
     ]
     if curve_lines:

@@ -71,3 +71,67 @@ def test_goal_each_gives_each_episode_the_share_of_its_aircraft_at_their_targets
     assert goal_each([{"episode": 0, "outcome": "timeout"}], 1) == [0]
     with pytest.raises(HeldOutError, match="1 distinct episodes, expected 0 to 1"):
         goal_each(rows[:1], 2)
+
+
+@pytest.fixture(scope="module")
+def averaged_run(tmp_path_factory):
+    """A seconds-long DDPG run on deck 1 that keeps the slow average of its actor (``actor_avg.npz``, with its
+    critic)."""
+    from conftest import short_config
+
+    from training.loop import Trainer
+
+    out = tmp_path_factory.mktemp("averaged") / "run"
+    cfg = short_config(algo="ddpg", total_steps=120, eval_every=0, demo_episodes=0, pretrain_updates=0,
+                       bc_weight=0.0, expert_relabel=False, actor_average=1e-3)
+    trainer = Trainer(cfg, out, progress=False)
+    trainer.train()
+    trainer.close()
+    return out
+
+
+def test_the_averaged_actor_choosing_by_its_critic_is_measured_and_cached_apart(averaged_run, tmp_path):
+    from deck_sim.policies import LearnedPolicy
+    from training.final_fit import AVERAGED_SELECT_FILE, SELECT_CANDIDATES, SELECT_SPREAD
+
+    run = tmp_path / "run"
+    shutil.copytree(averaged_run, run)
+    shipped = held_out(run, episodes=2, workers=1)
+    chosen = held_out(run, episodes=2, workers=1, play="averaged-select")
+    assert shipped["play"] == "shipped" and chosen["play"] == "averaged-select"
+    assert chosen["actor"] == AVERAGED_SELECT_FILE and chosen["actor_sha256"] != shipped["actor_sha256"]
+    # the averaged actor's own weights and critic, selecting among its fixed candidates
+    avg, sel = LearnedPolicy.load(run / "actor_avg.npz"), LearnedPolicy.load(run / AVERAGED_SELECT_FILE)
+    assert sel.selects and not avg.selects
+    assert sel.meta["select"] == {"candidates": SELECT_CANDIDATES, "spread": SELECT_SPREAD, "seed": 0}
+    assert all((sel.arrays[k] == v).all() for k, v in avg.arrays.items())
+    direct = evaluate(EvalConfig(agents=(f"x={run / AVERAGED_SELECT_FILE}",), scenes=("deck1",), episodes=2,
+                                 backend="serial", record="none"))
+    assert chosen["goal_each"] == [int(r["outcome"] == "goal")
+                                   for r in sorted(direct.episodes, key=lambda r: r["episode"])]
+    assert chosen["reward"] == direct.summary("deck1", "x")["reward"]
+    # each play its own cache: both read back without evaluating
+    assert (run / held_out_file(2)).exists() and (run / held_out_file(2, "averaged-select")).exists()
+    for play, record in (("averaged-select", chosen), ("shipped", shipped)):  # (the same wall time to the bit)
+        cached = held_out(run, episodes=2, workers=1, play=play)
+        assert (cached["wall_s"], cached["actor_sha256"]) == (record["wall_s"], record["actor_sha256"])
+    # a newer averaged actor: the selecting file is written again from it, and measured again
+    other = LearnedPolicy.load(run / "actor_avg.npz")
+    other.arrays["w0"] = other.arrays["w0"] * 0.5
+    import os
+    import time
+
+    other.save(run / "actor_avg.npz")
+    later = time.time() + 5
+    os.utime(run / "actor_avg.npz", (later, later))
+    again = held_out(run, episodes=2, workers=1, play="averaged-select")
+    assert again["actor_sha256"] != chosen["actor_sha256"]
+    assert (LearnedPolicy.load(run / AVERAGED_SELECT_FILE).arrays["w0"] == other.arrays["w0"]).all()
+
+
+def test_a_run_without_an_averaged_actor_or_an_unknown_play_is_refused_by_name(tmp_path):
+    run = _run(tmp_path)
+    with pytest.raises(HeldOutError, match="no averaged actor to measure .*actor_average = 0"):
+        held_out(run, episodes=1, play="averaged-select")
+    with pytest.raises(ValueError, match="unknown play 'final'; expected one of shipped, averaged-select"):
+        held_out(run, episodes=1, play="final")

@@ -405,3 +405,36 @@ def test_equal_differences_over_seeds_give_no_interval_and_no_verdict_alone(tmp_
     line = next(x for x in make_results.ablation_lines("deck1", runs) if "mddpg - ddpg" in x)
     assert "+5.0 points, no verdict (every seed +5.0 points, no spread over seeds to give an interval)" in line
     assert "ahead" not in line
+
+
+def _record(seed: int, success: float) -> dict:
+    """A finished reward-alone run's held-out record as ``regime_runs`` returns it."""
+    return {"seed": seed, "success": success, "collision": 1 - success, "path_ratio": 1.1, "turning_deg": 200.0,
+            "steps": 1_000_000, "finished": True, "wall_s": 600.0,
+            "goal_each": [int(i < round(100 * success)) for i in range(100)]}
+
+
+def test_the_runs_acting_through_their_critics_get_their_own_table_and_target_line(make_results):
+    selecting = {"deck2": {"mddpg": [_record(0, 0.80), _record(1, 0.82), _record(2, 0.84)],
+                           "ddpg": [_record(0, 0.70), _record(1, 0.72), _record(2, 0.74)]}}
+    text = "\n".join(make_results.selecting_section(selecting, {"deck2": 1_000_000}, 100, ["deck1", "deck2"]))
+    assert text.startswith("### The same runs, acting through their own critics")
+    assert "critic chooses among it and 64 fixed candidates around it (0.3 action units" in text
+    # 80, 82, 84: mean 82, sd 2, t(2) 4.303 -> +- 4.97; the paper's 91 % beside it
+    assert "| deck2 | mddpg | 3: 0, 1, 2 (1,000,000) | 30 min | 82.0 (77.0 to 87.0) | 80, 82, 84 | 91 |" in text
+    assert "- deck2: mddpg - ddpg, success paired over seeds 0, 1, 2: +10.0 points" in text
+    assert "- deck1: `deck1-reward` keeps no averaged actor (`actor_average`), so its runs act only as above." in text
+    assert "- deck2: no finished run with an averaged actor in this checkout: `python benchmarks/learning.py " \
+           "--recipe deck2-reward --arms mddpg,ddpg` trains them." in make_results.selecting_section({}, {}, 100,
+                                                                                                  ["deck2"])
+    # the reward section carries it after its own table when asked to
+    assert "### The same runs" not in "\n".join(make_results.reward_section({}, {}, 100, ["deck2"]))
+    assert "### The same runs" in "\n".join(make_results.reward_section({}, {}, 100, ["deck2"], selecting={}))
+    # the targets: the plain runs and the same runs acting through their critics, each its own verdict
+    plain = {"deck2": {"mddpg": [_record(0, 0.70), _record(1, 0.72), _record(2, 0.74)]}}
+    lines = make_results.targets(_NoShipped(), plain, ("deck2",), selecting)
+    assert lines[0] == ("- MDDPG from the reward alone on deck2: 72.0 % (mean of 3 seed(s)) against the target of "
+                        "80 % and the paper's 91 %: not met.")
+    assert lines[1] == ("- MDDPG from the reward alone on deck2, acting through its critic: 82.0 % (mean of 3 "
+                        "seed(s)) against the target of 80 % and the paper's 91 %: met.")
+    assert len(make_results.targets(_NoShipped(), plain, ("deck2",))) == 1  # (no such runs: no line of their own)

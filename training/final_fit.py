@@ -6,7 +6,7 @@ fits a fresh actor to the planner's labels on the whole replay buffer (``polish`
 drive for ``dagger_steps`` more steps, labelled by the planner, and fits again (``dagger_round``), and finally writes
 ``actor.npz``. Each part runs once per run: a finished run resumed with the fit or the round added does only what
 it lacks. ``actor_best.npz`` is written by the trainer's evaluations; ``shipped_actor`` picks the one of the two
-files a finished run ships.
+files a finished run ships; ``played_actor`` the file through which a run acts in each of ``PLAYS``.
 """
 
 from __future__ import annotations
@@ -80,6 +80,39 @@ def shipped_actor(run_dir: str | os.PathLike[str]) -> Path:
     if final.exists() and LearnedPolicy.load(final).meta.get("polished", False):
         return final
     return run / "actor_best.npz"
+
+
+PLAYS = ("shipped", "averaged-select")
+"""How a finished DDPG or MDDPG run acts on held-out episodes (``played_actor``):
+
+- ``shipped``: the actor ``scripts/train_shipped.py`` ships (``shipped_actor``);
+- ``averaged-select``: the slow average of its actor (``actor_avg.npz``, a run with ``actor_average``) choosing
+  each action by the run's own critic among the averaged actor's action and ``SELECT_CANDIDATES`` candidates around
+  it (``deck_sim.policies.selecting``, spread ``SELECT_SPREAD``). Both the actor and the critic are the run's, so the
+  agent still learnt from nothing but what its run learnt from."""
+SELECT_CANDIDATES = 64
+"""Candidate actions around the actor's that the critic chooses among in play ``averaged-select``."""
+SELECT_SPREAD = 0.3
+"""Their spread in action units (the action box is [-1, 1] per axis)."""
+AVERAGED_SELECT_FILE = "actor_avg_select.npz"
+"""The actor file of play ``averaged-select`` in a run folder, written from ``actor_avg.npz`` by ``played_actor``."""
+
+
+def played_actor(run_dir: str | os.PathLike[str], play: str = "shipped") -> Path:
+    """The actor file through which a finished run acts in ``play`` (one of ``PLAYS``). For ``averaged-select``
+    the file is written from ``actor_avg.npz`` (again whenever that file is newer) and is missing, like
+    ``actor_avg.npz``, until a run with ``actor_average`` finishes. ``ValueError`` for an unknown play."""
+    run = Path(run_dir)
+    if play == "shipped":
+        return shipped_actor(run)
+    if play != "averaged-select":
+        raise ValueError(f"unknown play {play!r}; expected one of {', '.join(PLAYS)}")
+    from deck_sim.policies import selecting
+
+    source, dest = run / "actor_avg.npz", run / AVERAGED_SELECT_FILE
+    if source.exists() and (not dest.exists() or dest.stat().st_mtime < source.stat().st_mtime):
+        selecting(LearnedPolicy.load(source), SELECT_CANDIDATES, SELECT_SPREAD).save(dest)  # (atomically)
+    return dest
 
 
 def polish(trainer: Trainer) -> None:

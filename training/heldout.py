@@ -6,7 +6,9 @@ stream: the episodes of ``deck_sim.evaluation`` (episode ``i`` reset with seed `
 episodes of every table in ``docs/results.md``), which no training, demonstration or selection ever sees.
 
 ``held_out(run)`` evaluates the actor that ``scripts/train_shipped.py`` would ship from the run
-(``training.final_fit.shipped_actor``) and writes ``heldout_<episodes>.json`` beside it. The file names the actor by its
+(``training.final_fit.shipped_actor``) and writes ``heldout_<episodes>.json`` beside it; ``held_out(run,
+play="averaged-select")`` the run's averaged actor choosing by its own critic (``training.final_fit.PLAYS``), in
+``heldout_<episodes>_averaged-select.json``. The file names the actor by its
 SHA-256, so a later call returns it without evaluating again until the actor changes (an unfinished run's
 ``actor_best.npz`` does, at each better evaluation). The record keeps each episode's success (``goal_each``), the
 values a paired comparison of two agents resamples (``deck_sim.metrics.paired_bootstrap_interval``).
@@ -23,24 +25,26 @@ from typing import Any
 
 from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate, machine
 from deck_sim.rollout import git_commit
-from training.final_fit import shipped_actor
+from training.final_fit import PLAYS, played_actor
 
 
-def held_out_file(episodes: int | str) -> str:
+def held_out_file(episodes: int | str, play: str = "shipped") -> str:
     """The name of the cached record of ``episodes`` held-out episodes in a run folder (``held_out``; ``"*"``: the
-    glob pattern of every count)."""
-    return f"heldout_{episodes}.json"
+    glob pattern of every count), of the shipped actor or of another ``play`` (``training.final_fit.PLAYS``)."""
+    return f"heldout_{episodes}.json" if play == "shipped" else f"heldout_{episodes}_{play}.json"
 
 
-def shipped_held_out(logs: str | Path, episodes: int) -> dict[str, Any] | None:
+def shipped_held_out(logs: str | Path, episodes: int, play: str = "shipped") -> dict[str, Any] | None:
     """The held-out record in a folder of logs shipped beside an actor of ``deck_sim/trained`` (no actor to measure
     again: ``scripts/train_shipped.py`` copies a run's ``heldout_<episodes>.json`` there) if it is a record of
-    ``episodes`` episodes of the held-out stream with each episode's outcome (``goal_each``); else None."""
+    ``episodes`` episodes of the held-out stream with each episode's outcome (``goal_each``), of ``play``; else
+    None."""
     try:
-        record = json.loads((Path(logs) / held_out_file(episodes)).read_text(encoding="utf-8"))
+        record = json.loads((Path(logs) / held_out_file(episodes, play)).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    return record if _of_episodes(record, episodes, per_episode=True) else None
+    ok = _of_episodes(record, episodes, per_episode=True) and record.get("play", "shipped") == play
+    return record if ok else None
 
 
 def _of_episodes(record: Any, episodes: int, per_episode: bool) -> bool:
@@ -61,8 +65,9 @@ def held_out(
     *,
     refresh: bool = False,
     per_episode: bool = False,
+    play: str = "shipped",
 ) -> dict[str, Any]:
-    """The run's shipped actor on ``episodes`` held-out episodes of its scene.
+    """The run's shipped actor (or the actor of another ``play``) on ``episodes`` held-out episodes of its scene.
 
     Args:
         run: A ``deck-sim train`` or stable-baselines3 run folder (its ``config.json`` names the scene).
@@ -71,29 +76,37 @@ def held_out(
         refresh: Evaluate again even when the run folder holds this actor's figures.
         per_episode: Evaluate again when the cached record lacks ``goal_each`` (a record written before it was kept)
             or holds another number of values than ``episodes``.
+        play: How the run acts (``training.final_fit.PLAYS``): ``shipped``, its shipped actor; ``averaged-select``,
+            its averaged actor choosing each action by its own critic (a finished run with ``actor_average``).
 
     Returns:
         ``{"success", "collision", "timeout", "off_surface"}`` (fractions) with Wilson 95 % intervals
         (``success_ci`` ...), ``reward``, ``path_ratio`` (path over the shortest static path) and ``turning_deg``
         (degrees per successful episode) with Student-t 95 % intervals, and the record of what was measured:
-        ``scene``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
+        ``scene``, ``play``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
         ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit; ``goal_each``
         gives each episode, in episode order, the share of its aircraft that reached their targets (1 or 0 with one
         aircraft).
 
     Raises:
-        HeldOutError: The folder has no ``config.json`` or no actor yet.
+        HeldOutError: The folder has no ``config.json`` or no actor of ``play`` yet.
+        ValueError: An unknown ``play``.
     """
+    if play not in PLAYS:
+        raise ValueError(f"unknown play {play!r}; expected one of {', '.join(PLAYS)}")
     run = Path(run)
     try:
         config = json.loads((run / "config.json").read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as err:
         raise HeldOutError(f"{run}: not a training run folder (config.json: {err})") from None
-    actor = shipped_actor(run)
+    actor = played_actor(run, play)
     if not actor.exists():
-        raise HeldOutError(f"{run}: no actor to measure yet ({actor.name} appears at the run's first evaluation)")
+        if play == "shipped":
+            raise HeldOutError(f"{run}: no actor to measure yet ({actor.name} appears at the run's first evaluation)")
+        raise HeldOutError(f"{run}: no averaged actor to measure (actor_avg.npz, written when a run with "
+                           f"actor_average finishes; its config has actor_average = {config.get('actor_average', 0)})")
     digest = hashlib.sha256(actor.read_bytes()).hexdigest()
-    cache = run / held_out_file(episodes)
+    cache = run / held_out_file(episodes, play)
     if not refresh:
         try:
             record = json.loads(cache.read_text(encoding="utf-8"))
@@ -111,6 +124,7 @@ def held_out(
     meta = load_actor(actor).meta
     record = {
         "scene": scene,
+        "play": play,
         "actor": actor.name,
         "actor_sha256": digest,
         "selected_at_step": int(meta.get("trained_steps", -1)),
