@@ -235,13 +235,13 @@ def shipped_sources(recipe: object, planned: list[tuple[str, int, Path]], plan: 
     recipe's agent in ``deck_sim/trained`` (``deck_sim.policies.shipped_logs``), each ``(arm, seed)`` with its
     logs folder: those whose run folder holds no evaluation and no checkpoint and whose shipped run was trained
     with ``plan(arm, seed)``, the configuration this command would train (``training.recipes.config_differences``)."""
-    from deck_sim.agents import LEARNED, recipe_name, training_algo
+    from deck_sim.agents import AGENTS, LEARNED, recipe_name, training_algo
     from deck_sim.policies import shipped_logs
 
     scene = recipe.scene
     logs: dict[str, dict[int, Path]] = {}
-    for agent in LEARNED:
-        if recipe_name(agent, scene) == recipe.name:
+    for agent in LEARNED:  # (an agent acting otherwise than its runs' shipped actor: the same runs, not read)
+        if recipe_name(agent, scene) == recipe.name and not AGENTS[agent].play:
             logs[training_algo(agent)] = {s: f for f, s in shipped_logs(agent, scene) if s is not None}
     found = {}
     for arm, seed, run in planned:

@@ -31,6 +31,10 @@ class AgentInfo:
             ``mddpg``, ``ddpg``, ``dqn`` or ``a2c``; empty: the agent's own name.
         recipe: For learned agents, which recipe of a scene trains them: empty for ``training/recipes/<scene>.toml``,
             else the suffix of ``<scene>-<recipe>.toml``.
+        play: For learned agents, how each run behind the shipped file acts (``training.final_fit.PLAYS``): empty
+            for the actor the run ships; ``averaged-select``: its averaged actor choosing each action by the run's
+            own critic. Such an agent is another way of acting of the runs of the agent with the same recipe and
+            algorithm, not other runs.
     """
 
     name: str
@@ -39,6 +43,7 @@ class AgentInfo:
     trainer: str = ""
     algo: str = ""
     recipe: str = ""
+    play: str = ""
 
 
 AGENTS: dict[str, AgentInfo] = {
@@ -52,6 +57,10 @@ AGENTS: dict[str, AgentInfo] = {
         AgentInfo("mddpg-reward", "learned", "MDDPG learnt from the reward alone (the paper's protocol)", "ddpg",
                   algo="mddpg", recipe="reward"),
         AgentInfo("ddpg-reward", "learned", "DDPG learnt from the reward alone", "ddpg", algo="ddpg", recipe="reward"),
+        AgentInfo("mddpg-reward-select", "learned", "the same MDDPG runs, each its averaged actor choosing each "
+                  "action by its own critic", "ddpg", algo="mddpg", recipe="reward", play="averaged-select"),
+        AgentInfo("ddpg-reward-select", "learned", "the same DDPG runs, each its averaged actor choosing each "
+                  "action by its own critic", "ddpg", algo="ddpg", recipe="reward", play="averaged-select"),
         AgentInfo("dqn-reward", "learned", "DQN at DDPG's budget with its own tuned fields (the paper's baseline)",
                   "sb3", algo="dqn", recipe="reward"),
         AgentInfo("a2c-reward", "learned", "A2C at DDPG's budget with its own tuned fields (the paper's baseline)",

@@ -156,7 +156,7 @@ def regime_agents(scene: str, regime: str) -> tuple[str, dict[str, str]] | None:
     found = []
     for agent in LEARNED:
         name = recipe_name(agent, scene)
-        if training_algo(agent) != "mddpg" or name not in names:
+        if training_algo(agent) != "mddpg" or name not in names or AGENT_INFO[agent].play:
             continue
         recipe = load_recipe(name)
         if config_regime(recipe.config("mddpg", recipe.seeds("mddpg")[0]).to_dict()) == regime:
@@ -165,7 +165,19 @@ def regime_agents(scene: str, regime: str) -> tuple[str, dict[str, str]] | None:
         return None
     if len(found) > 1:
         raise ValueError(f"{scene}: recipes {', '.join(found)} all train MDDPG in regime {regime}")
-    return found[0], {training_algo(agent): agent for agent in LEARNED if recipe_name(agent, scene) == found[0]}
+    return found[0], {training_algo(agent): agent for agent in LEARNED
+                      if recipe_name(agent, scene) == found[0] and not AGENT_INFO[agent].play}
+
+
+def play_agent(scene: str, regime: str, algo: str, play: str) -> str | None:
+    """The learned agent that ships the runs of ``algo`` of ``scene``'s recipe of ``regime`` acting in ``play``
+    (``training.final_fit.PLAYS``; ``regime_agents``'s agent for ``shipped``), None if none does."""
+    if (found := regime_agents(scene, regime)) is None:
+        return None
+    if play == "shipped":
+        return found[1].get(algo)
+    return next((a for a in LEARNED if recipe_name(a, scene) == found[0] and training_algo(a) == algo
+                 and AGENT_INFO[a].play == play), None)
 
 
 def regime_recipe(scene: str, regime: str) -> str:
@@ -196,20 +208,21 @@ class OffRecipe(NamedTuple):
 
 
 def _seed_folders(scene: str, regime: str, runs_dir: Path, algos: tuple[str, ...] | None = None,
-                  ) -> list[tuple[str, int, list[tuple[Path, bool]]]]:
+                  play: str = "shipped") -> list[tuple[str, int, list[tuple[Path, bool]]]]:
     """For each algorithm (``algos`` of it, default all) and seed of ``scene``'s recipe of ``regime``, the folders
     that may hold its run, in the order they are read, each with whether it is a run folder: the run folder
-    ``<runs_dir>/<recipe>-<algo>-seed<k>`` (True), then the logs shipped beside the regime's actor
-    (``deck_sim.policies.shipped_logs``; False), those with a ``config.json``."""
+    ``<runs_dir>/<recipe>-<algo>-seed<k>`` (True), then the logs shipped beside the regime's actor acting in
+    ``play`` (``play_agent``; ``deck_sim.policies.shipped_logs``; False), those with a ``config.json``."""
     if (found := regime_agents(scene, regime)) is None:
         return []
-    recipe, agents = load_recipe(found[0]), found[1]
+    recipe = load_recipe(found[0])
     out = []
     for algo in recipe.algos:
         if algos is not None and algo not in algos:
             continue
-        shipped = ({seed: folder for folder, seed in shipped_logs(agents[algo], scene) if seed is not None}
-                   if algo in agents else {})
+        agent = play_agent(scene, regime, algo, play)
+        shipped = ({seed: folder for folder, seed in shipped_logs(agent, scene) if seed is not None}
+                   if agent is not None else {})
         for seed in recipe.seeds(algo):
             folders = [(runs_dir / f"{recipe.name}-{algo}-seed{seed}", True), (shipped.get(seed), False)]
             out.append((algo, seed, [(f, own) for f, own in folders if f is not None and (f / "config.json").exists()]))
@@ -237,7 +250,7 @@ def regime_runs(scene: str, regime: str, runs_dir: Path, episodes: int, workers:
     from training.heldout import HeldOutError, held_out, shipped_held_out
 
     out: dict[str, list[dict]] = {}
-    for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos):
+    for algo, seed, folders in _seed_folders(scene, regime, runs_dir, algos, play):
         record = run = None
         for folder, own in folders:
             if _off_recipe(folder, regime_recipe(scene, regime), algo, seed):
@@ -701,7 +714,7 @@ def main() -> None:
     for scene in scenes:
         runs = {}
         for agent in agents:
-            if agent in LEARNED:
+            if agent in LEARNED and not AGENT_INFO[agent].play:  # (another way of acting: the same runs' curves)
                 # scripts/train_shipped.py's run folder
                 run = Path(args.runs) / f"{recipe_name(agent, scene)}-{training_algo(agent)}-seed0"
                 # the log shipped with the actor (the run folder may hold a newer, unshipped run), else the run's

@@ -11,6 +11,9 @@ For each scene and agent (``--algos``, default every learned agent of ``deck_sim
 - ``mddpg-reward`` and ``ddpg-reward``: the same with the scene's reward-alone recipe,
   ``training/recipes/<scene>-reward.toml``, in ``--out/<scene>-reward-<algo>-seed<seed>``; ``mddpg-planner`` and
   ``ddpg-planner`` with ``<scene>-planner.toml`` (taught by the planner on the agent's own observation).
+  ``mddpg-reward-select`` and ``ddpg-reward-select``: the runs of ``mddpg-reward`` and ``ddpg-reward`` (the same
+  folders, trained once), each acting through its averaged actor with its own critic choosing each action
+  (``training.final_fit.played_actor``, play ``averaged-select``); a recipe without ``actor_average`` is refused.
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
   ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
   (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
@@ -95,9 +98,9 @@ from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.checkpoints import comparable  # noqa: E402
 from training.config import ConfigError, TrainConfig  # noqa: E402
+from training.final_fit import AVERAGED_SELECT_FILE, played_actor  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file, shipped_held_out  # noqa: E402
-from training.loop import shipped_actor  # noqa: E402
 from training.recipes import (  # noqa: E402
     config_differences,
     differing_fields,
@@ -109,8 +112,16 @@ from training.recipes import (  # noqa: E402
 HELD_OUT_SEED = 1000
 DDPG_ALGOS = names(trainer="ddpg")
 """The agents trained by ``training.ddpg`` (MDDPG, DDPG); the others by stable-baselines3."""
+
+
+def play_of(algo: str) -> str:
+    """How the runs behind the shipped ``algo`` act (``training.final_fit.PLAYS``): ``shipped`` unless the agent
+    names another way (``deck_sim.agents.AgentInfo.play``)."""
+    return AGENTS[algo].play or "shipped"
 LABELS = {"mddpg": "MDDPG", "ddpg": "DDPG (no prediction)", "dqn": "DQN", "a2c": "A2C",
           "mddpg-reward": "MDDPG (reward alone)", "ddpg-reward": "DDPG (reward alone, no prediction)",
+          "mddpg-reward-select": "MDDPG (reward alone, averaged actor choosing by its critic)",
+          "ddpg-reward-select": "DDPG (reward alone, no prediction, averaged actor choosing by its critic)",
           "dqn-reward": "DQN (reward alone, tuned)", "a2c-reward": "A2C (reward alone, tuned)",
           "mddpg-planner": "MDDPG (planner on its observation)",
           "ddpg-planner": "DDPG (planner on its observation, no prediction)"}
@@ -142,8 +153,9 @@ def ship_logs(runs: list[Path], seeds: tuple[int, ...], scene: str, algo: str, h
             shutil.rmtree(old)
     for i, (run, seed) in enumerate(zip(runs, seeds, strict=True)):
         folder = logs if i == 0 else logs / f"seed{seed}"
-        names = ["eval.csv", "config.json", held_out_file(held_out_episodes)]  # (not other counts' caches)
-        for stale in folder.glob(held_out_file("*")):  # an earlier run's measurements
+        # (not other counts' caches; of an agent that acts otherwise than its runs' shipped actor, that play's)
+        names = ["eval.csv", "config.json", held_out_file(held_out_episodes, play_of(algo))]
+        for stale in folder.glob(held_out_file("*", play_of(algo))):  # an earlier run's measurements
             stale.unlink()
         for name in names:
             (folder / name).unlink(missing_ok=True)
@@ -158,17 +170,18 @@ def file_seeds(meta: dict[str, Any]) -> tuple[int, ...]:
     return tuple(int(m["config"]["seed"]) for m in meta.get("members") or [meta])
 
 
-def ship(runs: list[Path | LearnedPolicy], dest: Path) -> None:
-    """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``), or with several
+def ship(runs: list[Path | LearnedPolicy], dest: Path, play: str = "shipped") -> None:
+    """Write ``dest`` atomically: the one run's shipped actor (``training.loop.shipped_actor``; the actor of another
+    ``play``, ``training.final_fit.played_actor``, for an agent that acts otherwise), or with several
     runs an ``EnsemblePolicy`` of their shipped actors, which must differ in their seed alone (``training_of``: a
     folder finished by another command with other ``--steps`` or fields is refused, not averaged in). An actor of
     the file shipped before (``shipped_members``) stands for a run whose folder is not here."""
     if len(runs) == 1 and isinstance(runs[0], Path):
         tmp = dest.with_name(dest.name + ".tmp")
-        shutil.copyfile(shipped_actor(runs[0]), tmp)
+        shutil.copyfile(played_actor(runs[0], play), tmp)
         os.replace(tmp, dest)
         return
-    members = [r if isinstance(r, LearnedPolicy) else LearnedPolicy.load(shipped_actor(r)) for r in runs]
+    members = [r if isinstance(r, LearnedPolicy) else LearnedPolicy.load(played_actor(r, play)) for r in runs]
     first = training_of(members[0])
     for run, member in zip(runs[1:], members[1:], strict=True):
         differ = differing_fields(first, training_of(member))
@@ -192,24 +205,29 @@ def training_of(actor: LearnedPolicy) -> dict[str, Any]:
 
 
 def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, Path], episodes: int,
-                 label: str = "") -> None:
+                 label: str = "", play: str = "shipped") -> None:
     """Measure each kept actor (a seed taken from the shipped file) whose staged logs hold no record of
     ``episodes`` held-out episodes (``training.heldout``; a file shipped before those records were kept), so that
     its record is shipped with the logs and ``scripts/make_results.py`` compares that seed too. The actor is
     written into the staged folder for the measurement and removed after it; ``label`` (the scene and agent) starts
-    the progress line."""
+    the progress line. ``play``: the agent's way of acting (its kept actors already act that way; an
+    ``averaged-select`` actor is written as the averaged actor it was made from, which selects the same way)."""
     for seed, actor in sorted(kept.items()):
         folder = staged.get(seed)
-        if actor is None or folder is None or shipped_held_out(folder, episodes) is not None:
+        if actor is None or folder is None or shipped_held_out(folder, episodes, play) is not None:
             continue  # (a record of other episodes, or without each episode's outcome, is measured again)
-        path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
+        if play == "averaged-select":
+            path = folder / "actor_avg.npz"
+        else:
+            path = folder / ("actor.npz" if actor.meta.get("polished") else "actor_best.npz")  # (training.final_fit)
         print(f"{label or folder.name}: measuring the actor of seed {seed} taken from the shipped file on {episodes} "
               "held-out episodes", flush=True)
         actor.save(path)
         try:
-            held_out_record(folder, episodes, per_episode=True)
+            held_out_record(folder, episodes, per_episode=True, play=play)
         finally:
             path.unlink(missing_ok=True)
+            (folder / AVERAGED_SELECT_FILE).unlink(missing_ok=True)  # (written from actor_avg.npz to measure it)
 
 
 def shipped_members(dest: Path) -> dict[int, LearnedPolicy]:
@@ -290,8 +308,9 @@ def stage_shipped_logs(scene: str, algo: str, seeds: set[int], into: Path, episo
         if seed in seeds:
             staged[seed] = into / f"seed{seed}"
             shutil.copytree(folder, staged[seed], ignore=shutil.ignore_patterns("seed*"))
-            if not (staged[seed] / held_out_file(episodes)).exists():
-                print(f"{scene} {algo}: the shipped logs of seed {seed} hold no {held_out_file(episodes)}", flush=True)
+            record = held_out_file(episodes, play_of(algo))
+            if not (staged[seed] / record).exists():
+                print(f"{scene} {algo}: the shipped logs of seed {seed} hold no {record}", flush=True)
     return staged
 
 
@@ -477,6 +496,15 @@ def main() -> None:
                 print(f"{scene} {algo}: not shipped, not measured", flush=True)
                 continue
             seeds = seeds_given or default_seeds(scene, algo)
+            if (not args.evaluate_only and play_of(algo) == "averaged-select"
+                    and run_config(scene, algo, args.steps or default_steps(scene, algo), seeds[0],
+                                   fields).actor_average <= 0):
+                message = (f"{scene} {algo}: training/recipes/{recipe_name(algo, scene)}.toml keeps no averaged actor "
+                           f"(actor_average), which {algo} acts through")
+                if args.algos:
+                    raise SystemExit(message)
+                print(f"{message}; skipped", flush=True)
+                continue
             if algo in DDPG_ALGOS:  # the seeds whose actors the shipped file holds
                 in_file = set(shipped_members(dest))
             else:  # the seeds the shipped run was chosen from
@@ -538,7 +566,7 @@ def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Pat
     is not the actor of the best kept run. Returns the folders whose logs were shipped (a kept seed's staged copy
     in ``staging``), the shipped run first for DQN and A2C."""
     staged = stage_shipped_logs(scene, algo, set(kept), staging or Path(), episodes_per_run)
-    measure_kept(kept, staged, episodes_per_run, f"{scene} {algo}")
+    measure_kept(kept, staged, episodes_per_run, f"{scene} {algo}", play_of(algo))
     if algo not in DDPG_ALGOS and kept:  # the shipped file must be the best kept run's, or none is right
         order = sorted(kept)
         best = order[[staged[k] for k in order].index(best_run([staged[k] for k in order]))]
@@ -551,9 +579,9 @@ def train_and_ship(scene: str, algo: str, seeds: tuple[int, ...], runs: list[Pat
             print(f"{scene} {algo}: seed {seed} as shipped with {dest.name} (no run folder {run})", flush=True)
             continue
         train(run, scene, algo, steps, seed, fields)
-        held_out_record(run, episodes_per_run)  # docs/results.md's episodes, shipped beside the actor
+        held_out_record(run, episodes_per_run, play=play_of(algo))  # docs/results.md's episodes, shipped beside it
     if algo in DDPG_ALGOS:
-        ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest)
+        ship([kept.get(seed, run) for seed, run in zip(seeds, runs, strict=True)], dest, play_of(algo))
         runs = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
     else:  # one run, the others' logs beside it
         candidates = [staged.get(seed, run) for seed, run in zip(seeds, runs, strict=True)]
@@ -653,7 +681,10 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         "evaluation is highest (a mean of DQN's discrete displacements would not be DQN). A run that ends with the",
         "cloning fit (`polish`) ships its final,",
         "fitted actor (`training.loop.shipped_actor`); any other run the actor of its best periodic evaluation",
-        "(seed-500 episodes): the column `actor` says which. Held-out:",
+        "(seed-500 episodes): the column `actor` says which. The agents named `-select` are the same runs as the",
+        "agent without the suffix, each acting through its final slow average of its actor (`actor_avg.npz`) with",
+        "its own critic choosing each action among candidates around that actor's (`training.final_fit.PLAYS`).",
+        "Held-out:",
         "consecutive episodes of",
         "`deck_sim.load(scene, seed=1000)`, the stream of `deck-sim run --scene <scene> --policy <agent> --seed 1000`",
         "(never a training, demonstration or model-selection episode). Training time: wall-clock of the runs, summed,",
@@ -674,7 +705,10 @@ def readme_text(report: dict[str, dict[str, dict]]) -> str:
         # which actor the file is: its own record says
         meta = load_actor(TRAINED_DIR / f"{scene}_{algo}.npz").meta
         members = meta.get("members") or []
-        if meta.get("polished", False):
+        if (members or [meta])[0].get("select"):  # (an averaged actor acting through its critic: each member's)
+            steps = ", ".join(str(m.get("trained_steps", "?")) for m in members or [meta])
+            actor = f"its averaged actor choosing by its critic ({steps} steps)"
+        elif meta.get("polished", False):
             actor = "final, fitted"
         elif members:  # each member its own run's best evaluation, at its own step
             actor = f"its best evaluation ({', '.join(str(m.get('trained_steps', '?')) for m in members)} steps)"

@@ -394,7 +394,7 @@ def test_train_shipped_adds_seeds_to_a_shipped_agent_and_skips_complete_ones(tmp
     monkeypatch.setattr(registry, "TRAINED_DIR", trained)
     monkeypatch.setattr(script, "TRAINED_DIR", trained)
     monkeypatch.setattr(script, "write_readme", lambda report: None)
-    monkeypatch.setattr(script, "held_out_record", lambda run, episodes: None)
+    monkeypatch.setattr(script, "held_out_record", lambda run, episodes, play="shipped": None)
     members = script.shipped_members(trained / "deck1_mddpg-reward.npz")
     source = tmp_path / "source"  # the runs' logs as shipped, where the fake training finds them
     for algo in ("mddpg-reward", "dqn-reward"):
@@ -563,3 +563,56 @@ def test_a_run_folder_of_another_configuration_is_refused_not_reused(tmp_path):
     with pytest.raises(SystemExit, match="deck1-reward-mddpg-seed0: a run trained with other scene_overrides than "
                                          "the recipe gives now; move it away"):
         script.train(run, "deck1", "mddpg-reward", steps, 0, {})
+
+
+def test_an_agent_acting_through_its_critic_ships_each_runs_averaged_actor_selecting(tmp_path, monkeypatch, capsys):
+    """``mddpg-reward-select``: the runs of ``mddpg-reward``, each its averaged actor choosing by its own critic,
+    joined as an ensemble whose members select; its logs carry that play's held-out record; a recipe without an
+    averaged actor is refused by name."""
+    import sys
+
+    from conftest import short_config
+
+    from deck_sim.policies import registry
+    from training.final_fit import SELECT_CANDIDATES, SELECT_SPREAD
+    from training.heldout import held_out_file
+    from training.loop import Trainer
+
+    script = _train_shipped()
+    runs = []
+    for seed in (0, 1):
+        run = tmp_path / f"run{seed}"
+        cfg = short_config(algo="ddpg", total_steps=80, seed=seed, demo_episodes=0, pretrain_updates=0,
+                           bc_weight=0.0, expert_relabel=False, actor_average=1e-3)
+        trainer = Trainer(cfg, run, progress=False)
+        trainer.train()
+        trainer.close()
+        runs.append(run)
+    dest = tmp_path / "deck1_ddpg-reward-select.npz"
+    script.ship(runs, dest, script.play_of("ddpg-reward-select"))
+    shipped = load_actor(dest)
+    assert isinstance(shipped, EnsemblePolicy) and script.file_seeds(shipped.meta) == (0, 1)
+    for member, run in zip(shipped.members, runs, strict=True):
+        averaged = LearnedPolicy.load(run / "actor_avg.npz")
+        assert member.selects and member.meta["select"]["candidates"] == SELECT_CANDIDATES
+        assert member.meta["select"]["spread"] == SELECT_SPREAD
+        assert all(np.array_equal(member.arrays[k], v) for k, v in averaged.arrays.items())
+    script.ship(runs[:1], dest, "shipped")  # the plain agent: the run's own shipped actor, no selection
+    assert not load_actor(dest).selects
+    assert script.play_of("mddpg-reward") == "shipped" and script.play_of("dqn-reward") == "shipped"
+
+    # the logs: each run's record of that play (not the plain one's)
+    monkeypatch.setattr(registry, "TRAINED_DIR", tmp_path / "trained")
+    for run in runs:
+        (run / held_out_file(2, "averaged-select")).write_text("{}")
+        (run / held_out_file(2)).write_text("{}")
+    logs = script.ship_logs(runs, (0, 1), "deck1", "ddpg-reward-select", 2)
+    assert (logs / held_out_file(2, "averaged-select")).exists() and not (logs / held_out_file(2)).exists()
+    assert (logs / "seed1" / held_out_file(2, "averaged-select")).exists()
+
+    monkeypatch.setattr(sys, "argv", ["train_shipped.py", "--scenes", "deck1", "--algos", "mddpg-reward-select",
+                                      "--out", str(tmp_path / "runs")])
+    with pytest.raises(SystemExit, match="deck1 mddpg-reward-select: training/recipes/deck1-reward.toml keeps no "
+                                         r"averaged actor \(actor_average\), which mddpg-reward-select acts through"):
+        script.main()
+

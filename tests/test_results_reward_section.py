@@ -271,6 +271,12 @@ def test_each_regimes_recipe_and_agents_come_from_the_registry_and_the_recipes(m
     recipe, agents = make_results.regime_agents("square", "oracle-teacher")
     assert recipe == "square" and agents["mddpg"] == "mddpg" and agents["ddpg"] == "ddpg"
     assert make_results.regime_agents("square", "planner") is None
+    # the agents that act otherwise through the same runs are not the regime's agents, but ship that way of acting
+    assert make_results.play_agent("deck2", "reward", "mddpg", "averaged-select") == "mddpg-reward-select"
+    assert make_results.play_agent("deck2", "reward", "ddpg", "averaged-select") == "ddpg-reward-select"
+    assert make_results.play_agent("deck2", "reward", "mddpg", "shipped") == "mddpg-reward"
+    assert make_results.play_agent("deck2", "reward", "dqn", "averaged-select") is None
+    assert make_results.play_agent("deck2", "planner", "mddpg", "averaged-select") is None
 
 
 def test_the_whole_script_writes_every_section(tmp_path):
