@@ -63,8 +63,8 @@ from deck_sim.rollout import git_commit  # noqa: E402
 from training.recipes import config_differences, load_recipe, recipe_names, shipped_drift  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-AGENTS = ("mddpg-reward,ddpg-reward,dqn-reward,a2c-reward,mddpg-planner,ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,"
-          "mpc,scripted-observed,scripted,scripted-body")
+AGENTS = ("mddpg-reward,ddpg-reward,mddpg-reward-select,ddpg-reward-select,dqn-reward,a2c-reward,mddpg-planner,"
+          "ddpg-planner,mddpg,ddpg,dqn,a2c,apf,astar,mpc,scripted-observed,scripted,scripted-body")
 
 
 def training_figures(scene: str, agent: str) -> dict | None:
@@ -119,6 +119,8 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
     ]
     for scene in scenes:
         for agent in agents:
+            if agent in missing[scene] and not made_for(agent, scene):
+                continue  # (an agent acting through an averaged actor the scene's recipe does not keep)
             if agent in missing[scene]:
                 lines.append(f"| {agent} | {scene} | - | no policy shipped yet: not evaluated (n/a) | - | - | 0 |")
             elif agent in LEARNED:
@@ -134,6 +136,19 @@ def provenance(scenes: list[str], agents: list[str], episodes: int, missing: dic
             else:
                 lines.append(f"| {agent} | {scene} | - | none (no training) | - | - | {episodes} |")
     return lines
+
+
+def made_for(agent: str, scene: str) -> bool:
+    """Whether ``agent`` can be shipped for ``scene``: every agent but one acting through an averaged actor
+    (``AgentInfo.play``) on a scene whose recipe for it keeps none (``actor_average``)."""
+    if AGENT_INFO.get(agent) is None or AGENT_INFO[agent].play != "averaged-select":
+        return True
+    name = recipe_name(agent, scene)
+    if name not in recipe_names():
+        return False
+    recipe = load_recipe(name)
+    algo = training_algo(agent)
+    return recipe.config(algo, recipe.seeds(algo)[0]).actor_average > 0
 
 
 def shipped_regime(scene: str, agent: str) -> str | None:
@@ -773,7 +788,9 @@ def main() -> None:
         "",
         "Agents: the learned policies shipped in `deck_sim/trained/` (trained by `scripts/train_shipped.py`): "
         "`mddpg-reward` and `ddpg-reward`, MDDPG and DDPG without prediction learnt from the reward alone as in the "
-        "paper; `mddpg-planner` and `ddpg-planner`, the same agents taught by the scripted planner on their own "
+        "paper; `mddpg-reward-select` and `ddpg-reward-select`, the same runs each acting through its averaged actor "
+        "and its own critic's choice (scenes whose recipe keeps an averaged actor); `mddpg-planner` and "
+        "`ddpg-planner`, the same agents taught by the scripted planner on their own "
         "observation; `mddpg` and `ddpg`, taught by the full-knowledge planner (the column `learnt from` says so); "
         "`dqn-reward` and `a2c-reward`, DQN and A2C learnt from the reward alone at DDPG's budget with their own "
         "tuned fields (one run each, the seed with the best periodic evaluation); `dqn` and `a2c`, short runs at "
