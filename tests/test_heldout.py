@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate
@@ -135,3 +136,26 @@ def test_a_run_without_an_averaged_actor_or_an_unknown_play_is_refused_by_name(t
         held_out(run, episodes=1, play="averaged-select")
     with pytest.raises(ValueError, match="unknown play 'final'; expected one of shipped, averaged-select"):
         held_out(run, episodes=1, play="final")
+
+
+def test_an_averaged_actor_saved_without_its_critic_takes_the_checkpoints_and_only_if_it_is_the_same_actor(
+        averaged_run, tmp_path):
+    from deck_sim.policies import SELECT_OFFSETS, LearnedPolicy
+    from training.final_fit import played_actor
+
+    run = tmp_path / "run"
+    shutil.copytree(averaged_run, run)
+    full = LearnedPolicy.load(run / "actor_avg.npz")
+    bare = LearnedPolicy({k: v for k, v in full.arrays.items() if not k.startswith("critic.")},
+                         {k: v for k, v in full.meta.items() if k != "critic"})
+    bare.save(run / "actor_avg.npz")  # as a run older than the critic's export wrote it
+    chosen = LearnedPolicy.load(played_actor(run, "averaged-select"))
+    assert chosen.selects and chosen.meta["critic"] == full.meta["critic"]
+    assert set(chosen.arrays) == {*full.arrays, SELECT_OFFSETS}
+    assert all(np.array_equal(chosen.arrays[k], v) for k, v in full.arrays.items())
+    # another actor than the checkpoint's: its critic is not this actor's, refused by name
+    (run / "actor_avg_select.npz").unlink()
+    other = LearnedPolicy({k: v * 0.5 if k == "w0" else v for k, v in bare.arrays.items()}, bare.meta)
+    other.save(run / "actor_avg.npz")
+    with pytest.raises(ValueError, match="carries no critic, and the checkpoint's averaged actor .* is not the same"):
+        played_actor(run, "averaged-select")

@@ -278,7 +278,8 @@ def test_each_regimes_recipe_and_agents_come_from_the_registry_and_the_recipes(m
     assert make_results.play_agent("deck2", "reward", "dqn", "averaged-select") is None
     assert make_results.play_agent("deck2", "planner", "mddpg", "averaged-select") is None
     # and exist only where the recipe keeps an averaged actor: deck 1's does not, so its tables do not list them
-    assert make_results.made_for("mddpg-reward-select", "deck2") and make_results.made_for("ddpg-reward-select", "square")
+    assert make_results.made_for("mddpg-reward-select", "deck2")
+    assert make_results.made_for("ddpg-reward-select", "square")
     assert not make_results.made_for("mddpg-reward-select", "deck1")
     assert make_results.made_for("mddpg-reward", "deck1") and make_results.made_for("apf", "deck1")
 

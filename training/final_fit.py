@@ -101,7 +101,10 @@ AVERAGED_SELECT_FILE = "actor_avg_select.npz"
 def played_actor(run_dir: str | os.PathLike[str], play: str = "shipped") -> Path:
     """The actor file through which a finished run acts in ``play`` (one of ``PLAYS``). For ``averaged-select``
     the file is written from ``actor_avg.npz`` (again whenever that file is newer) and is missing, like
-    ``actor_avg.npz``, until a run with ``actor_average`` finishes. ``ValueError`` for an unknown play."""
+    ``actor_avg.npz``, until a run with ``actor_average`` finishes. An ``actor_avg.npz`` written without its critic
+    (by a run older than the critic's export) takes the critic of the run's checkpoint, which a finished run saved
+    at the same step with the same averaged actor (``training.checkpoints.checkpoint_policy``; checked).
+    ``ValueError`` for an unknown play, or an averaged actor without a critic whose checkpoint does not match it."""
     run = Path(run_dir)
     if play == "shipped":
         return shipped_actor(run)
@@ -111,8 +114,31 @@ def played_actor(run_dir: str | os.PathLike[str], play: str = "shipped") -> Path
 
     source, dest = run / "actor_avg.npz", run / AVERAGED_SELECT_FILE
     if source.exists() and (not dest.exists() or dest.stat().st_mtime < source.stat().st_mtime):
-        selecting(LearnedPolicy.load(source), SELECT_CANDIDATES, SELECT_SPREAD).save(dest)  # (atomically)
+        averaged = LearnedPolicy.load(source)
+        if not averaged.critic_heads:
+            averaged = _with_checkpoint_critic(run, averaged)
+        selecting(averaged, SELECT_CANDIDATES, SELECT_SPREAD).save(dest)  # (atomically)
     return dest
+
+
+def _with_checkpoint_critic(run: Path, averaged: LearnedPolicy) -> LearnedPolicy:
+    """``averaged`` (a run's ``actor_avg.npz`` without its critic) with the critic of the run's checkpoint, which
+    must hold the same averaged actor at the same step; ``ValueError`` naming the mismatch otherwise."""
+    from training.checkpoints import CheckpointError, checkpoint_policy
+
+    try:
+        saved = checkpoint_policy(run, averaged=True)
+    except (CheckpointError, OSError) as err:
+        raise ValueError(f"{run}: actor_avg.npz carries no critic, and the run's checkpoint gives none ({err})"
+                         ) from None
+    step, at = int(averaged.meta.get("trained_steps", -1)), int(saved.meta["trained_steps"])
+    same = step == at and all(k in saved.arrays and np.array_equal(saved.arrays[k], v)
+                              for k, v in averaged.arrays.items())
+    if not same:
+        raise ValueError(f"{run}: actor_avg.npz (step {step:,}) carries no critic, and the checkpoint's averaged "
+                         f"actor (step {at:,}) is not the same actor, so its critic is not this actor's")
+    return LearnedPolicy({**averaged.arrays, **{k: v for k, v in saved.arrays.items() if k not in averaged.arrays}},
+                         {**averaged.meta, "critic": saved.meta["critic"]}, source=str(run / "actor_avg.npz"))
 
 
 def polish(trainer: Trainer) -> None:
