@@ -13,7 +13,10 @@ For each scene and agent (``--algos``, default every learned agent of ``deck_sim
   ``ddpg-planner`` with ``<scene>-planner.toml`` (taught by the planner on the agent's own observation).
   ``mddpg-reward-select`` and ``ddpg-reward-select``: the runs of ``mddpg-reward`` and ``ddpg-reward`` (the same
   folders, trained once), each acting through its averaged actor with its own critic choosing each action
-  (``training.final_fit.played_actor``, play ``averaged-select``); a recipe without ``actor_average`` is refused.
+  (``training.final_fit.played_actor``, play ``averaged-select``); a scene whose recipe keeps no averaged actor
+  (no ``actor_average``) is refused when the agent is named in ``--algos``, skipped otherwise. They share their
+  runs with ``mddpg-reward`` and ``ddpg-reward``: ship both after the runs change (``--redo`` of one leaves the
+  other as it was shipped).
 - ``dqn`` and ``a2c``: stable-baselines3 through ``training.baselines.train_baseline`` with the recipe's
   ``[sb3]`` table, in ``--out/<scene>-<algo>-seed<seed>``; the networks are exported to numpy
   (``training.baselines.export_sb3``), so the shipped files need neither stable-baselines3 nor ``training``.
@@ -98,7 +101,7 @@ from deck_sim.policies.regimes import config_regime  # noqa: E402
 from deck_sim.rollout import run_episode  # noqa: E402
 from training.checkpoints import comparable  # noqa: E402
 from training.config import ConfigError, TrainConfig  # noqa: E402
-from training.final_fit import AVERAGED_SELECT_FILE, played_actor  # noqa: E402
+from training.final_fit import AVERAGED_SELECT_FILE, play_settings, played_actor  # noqa: E402
 from training.heldout import held_out as held_out_record  # noqa: E402
 from training.heldout import held_out_file, shipped_held_out  # noqa: E402
 from training.recipes import (  # noqa: E402
@@ -210,8 +213,10 @@ def measure_kept(kept: Mapping[int, LearnedPolicy | None], staged: Mapping[int, 
     ``episodes`` held-out episodes (``training.heldout``; a file shipped before those records were kept), so that
     its record is shipped with the logs and ``scripts/make_results.py`` compares that seed too. The actor is
     written into the staged folder for the measurement and removed after it; ``label`` (the scene and agent) starts
-    the progress line. ``play``: the agent's way of acting (its kept actors already act that way; an
-    ``averaged-select`` actor is written as the averaged actor it was made from, which selects the same way)."""
+    the progress line. ``play``: the agent's way of acting. Its kept actors act that way already, with today's
+    settings (``kept_seeds``); an ``averaged-select`` one is written as ``actor_avg.npz``, from which
+    ``training.final_fit.played_actor`` makes the same selecting actor again (the file's own offsets are
+    replaced by the same draws)."""
     for seed, actor in sorted(kept.items()):
         folder = staged.get(seed)
         if actor is None or folder is None or shipped_held_out(folder, episodes, play) is not None:
@@ -244,8 +249,10 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
                fields: dict[str, Any]) -> dict[int, LearnedPolicy]:
     """The seeds to take from the file shipped at ``dest`` rather than train: those whose run folder is not here
     (no final ``actor.npz``, no checkpoint to resume) and whose shipped actor was trained with the configuration
-    the recipe gives that seed now (``run_config``), each with its actor. A shipped actor trained otherwise (another
-    budget, or a recipe changed since) is not kept, and the script says so: that seed trains again."""
+    the recipe gives that seed now (``run_config``) and acting as the agent's play does now (``play_settings``:
+    an actor selecting with other settings, or not selecting, is not this agent's), each with its actor. A shipped
+    actor trained or acting otherwise (another budget, a recipe changed since) is not kept, and the script says so:
+    that seed trains again."""
     shipped = shipped_members(dest)
     kept = {}
     for seed, run in zip(seeds, runs, strict=True):
@@ -262,6 +269,11 @@ def kept_seeds(dest: Path, scene: str, algo: str, steps: int, seeds: tuple[int, 
         if differ:
             print(f"{scene} {algo}: the shipped actor of seed {seed} was trained with other {', '.join(differ)} "
                   "than the recipe gives now; training that seed again", flush=True)
+            continue
+        if shipped[seed].meta.get("select", {}) != play_settings(play_of(algo)):  # (acts otherwise than today's)
+            print(f"{scene} {algo}: the shipped actor of seed {seed} selects its actions otherwise "
+                  f"({shipped[seed].meta.get('select')}) than {play_of(algo)} does now "
+                  f"({play_settings(play_of(algo)) or 'no selection'}); training that seed again", flush=True)
             continue
         kept[seed] = shipped[seed]
     return kept
@@ -447,7 +459,8 @@ def main() -> None:
     parser.add_argument("--out", default="runs/learning", help="run folders, <out>/<scene>-<algo>-seed<seed>")
     parser.add_argument("--episodes-per-run", type=int, default=100,
                         help="episodes of docs/results.md on which each run's actor is measured "
-                             "(training.heldout; shipped as heldout_<N>.json beside the actor's logs)")
+                             "(training.heldout; shipped as heldout_<N>.json beside the actor's logs, "
+                             "heldout_<N>_<play>.json for an agent acting otherwise)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--evaluate-only", action="store_true", help="measure the shipped files again (no training)")
     mode.add_argument("--redo", action="store_true", help="copy and measure again agents already shipped")

@@ -159,3 +159,41 @@ def test_an_averaged_actor_saved_without_its_critic_takes_the_checkpoints_and_on
     other.save(run / "actor_avg.npz")
     with pytest.raises(ValueError, match="carries no critic, and the checkpoint's averaged actor .* is not the same"):
         played_actor(run, "averaged-select")
+
+
+def test_the_selecting_file_follows_its_averaged_actor_and_the_selections_settings(averaged_run, tmp_path,
+                                                                                   monkeypatch):
+    import training.final_fit as final_fit
+    from deck_sim.policies import LearnedPolicy
+    from training.heldout import shipped_held_out
+
+    run = tmp_path / "run"
+    shutil.copytree(averaged_run, run)
+    path = final_fit.played_actor(run, "averaged-select")
+    first = LearnedPolicy.load(path).meta
+    assert first["select"] == final_fit.play_settings("averaged-select") and "averaged_sha256" in first
+    before = path.read_bytes()
+    assert final_fit.played_actor(run, "averaged-select").read_bytes() == before  # (up to date: not written again)
+    monkeypatch.setattr(final_fit, "SELECT_CANDIDATES", 8)  # other settings: made again, and old records refused
+    assert LearnedPolicy.load(final_fit.played_actor(run, "averaged-select")).meta["select"]["candidates"] == 8
+    record = {"episodes": 2, "seed": DEFAULT_SEED, "goal_each": [1, 0], "play": "averaged-select",
+              "play_settings": {"candidates": 64, "spread": 0.3, "seed": 0}}
+    (run / held_out_file(2, "averaged-select")).write_text(json.dumps(record))
+    assert shipped_held_out(run, 2, "averaged-select") is None
+    (run / held_out_file(2, "averaged-select")).write_text(json.dumps({**record, "play_settings": {
+        "candidates": 8, "spread": 0.3, "seed": 0}}))
+    assert shipped_held_out(run, 2, "averaged-select")["goal_each"] == [1, 0]
+    assert shipped_held_out(run, 2) is None  # (another play's record is not the shipped actor's)
+    (run / "actor_avg.npz").unlink()  # its averaged actor gone: the file made of it goes too
+    assert not final_fit.played_actor(run, "averaged-select").exists()
+    with pytest.raises(HeldOutError, match="no averaged actor to measure"):
+        held_out(run, episodes=1, play="averaged-select")
+
+
+def test_every_agents_way_of_acting_is_a_play():
+    from deck_sim.agents import AGENTS
+    from training.final_fit import PLAYS
+
+    plays = {a.name: a.play for a in AGENTS.values() if a.play}
+    assert plays == {"mddpg-reward-select": "averaged-select", "ddpg-reward-select": "averaged-select"}
+    assert set(plays.values()) <= set(PLAYS) and all(AGENTS[a].trainer == "ddpg" for a in plays)

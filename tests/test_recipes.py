@@ -181,6 +181,10 @@ def test_a_reward_alone_agent_that_is_not_shipped_is_refused_with_the_command_th
         shipped_policy_path("mddpg-reward", "harbour")
     with pytest.raises(PolicyFileError, match="deck-sim train --recipe harbour-reward --algo mddpg"):
         shipped_policy_path("mddpg-reward", "harbour")
+    # an agent acting through the averaged actor: where it can ship, and how one run acts that way
+    with pytest.raises(PolicyFileError, match=r"recipe deck1-reward keeps an averaged actor \(actor_average\).*"
+                                              "deck-sim select RUN --averaged --out FILE"):
+        shipped_policy_path("mddpg-reward-select", "deck1")
     with pytest.raises(SystemExit):  # a shipped agent's name, not a training algorithm
         main(["train", "--algo", "mddpg-reward", "--print-config"])
     assert "invalid choice: 'mddpg-reward'" in capsys.readouterr().err

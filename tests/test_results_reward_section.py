@@ -282,6 +282,10 @@ def test_each_regimes_recipe_and_agents_come_from_the_registry_and_the_recipes(m
     assert make_results.made_for("ddpg-reward-select", "square")
     assert not make_results.made_for("mddpg-reward-select", "deck1")
     assert make_results.made_for("mddpg-reward", "deck1") and make_results.made_for("apf", "deck1")
+    rows = make_results.provenance(["deck1", "deck2"], ["mddpg-reward-select"], 100,
+                                   {"deck1": ["mddpg-reward-select"], "deck2": ["mddpg-reward-select"]})
+    assert [r for r in rows if "| deck1 |" in r] == []
+    assert "| mddpg-reward-select | deck2 | - | no policy shipped yet: not evaluated (n/a) | - | - | 0 |" in rows
 
 
 def test_the_whole_script_writes_every_section(tmp_path):

@@ -11,6 +11,7 @@ files a finished run ships; ``played_actor`` the file through which a run acts i
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import time
@@ -98,13 +99,21 @@ AVERAGED_SELECT_FILE = "actor_avg_select.npz"
 """The actor file of play ``averaged-select`` in a run folder, written from ``actor_avg.npz`` by ``played_actor``."""
 
 
+def play_settings(play: str) -> dict[str, Any]:
+    """What else than the run's files decides how it acts in ``play``: the selection's ``candidates``, ``spread``
+    and offsets' ``seed`` for ``averaged-select`` (as ``deck_sim.policies.selecting`` records them in ``meta``);
+    empty for ``shipped``."""
+    return {"candidates": SELECT_CANDIDATES, "spread": SELECT_SPREAD, "seed": 0} if play == "averaged-select" else {}
+
+
 def played_actor(run_dir: str | os.PathLike[str], play: str = "shipped") -> Path:
     """The actor file through which a finished run acts in ``play`` (one of ``PLAYS``). For ``averaged-select``
-    the file is written from ``actor_avg.npz`` (again whenever that file is newer) and is missing, like
-    ``actor_avg.npz``, until a run with ``actor_average`` finishes. An ``actor_avg.npz`` written without its critic
-    (by a run older than the critic's export) takes the critic of the run's checkpoint, which a finished run saved
-    at the same step with the same averaged actor (``training.checkpoints.checkpoint_policy``; checked).
-    ``ValueError`` for an unknown play, or an averaged actor without a critic whose checkpoint does not match it."""
+    the file is written from ``actor_avg.npz`` and rewritten whenever it was not made from that file's bytes with
+    today's ``play_settings`` (its ``meta`` records both); it is missing, like ``actor_avg.npz``, until a run with
+    ``actor_average`` finishes (a stale one is removed). An ``actor_avg.npz`` written without its critic (by a run
+    older than the critic's export) takes the critic of the run's checkpoint, which a finished run saved at the
+    same step with the same averaged actor (``training.checkpoints.checkpoint_policy``; checked).
+    ``ValueError`` for an unknown play, or an averaged actor without a critic whose checkpoint does not give it."""
     run = Path(run_dir)
     if play == "shipped":
         return shipped_actor(run)
@@ -113,11 +122,23 @@ def played_actor(run_dir: str | os.PathLike[str], play: str = "shipped") -> Path
     from deck_sim.policies import selecting
 
     source, dest = run / "actor_avg.npz", run / AVERAGED_SELECT_FILE
-    if source.exists() and (not dest.exists() or dest.stat().st_mtime < source.stat().st_mtime):
-        averaged = LearnedPolicy.load(source)
-        if not averaged.critic_heads:
-            averaged = _with_checkpoint_critic(run, averaged)
-        selecting(averaged, SELECT_CANDIDATES, SELECT_SPREAD).save(dest)  # (atomically)
+    if not source.exists():
+        dest.unlink(missing_ok=True)  # (made from an averaged actor that is gone)
+        return dest
+    digest = hashlib.sha256(source.read_bytes()).hexdigest()
+    settings = play_settings(play)
+    if dest.exists():
+        try:
+            meta = LearnedPolicy.load(dest).meta
+        except (OSError, ValueError):  # (a damaged derived file is made again)
+            meta = {}
+        if meta.get("averaged_sha256") == digest and meta.get("select") == settings:
+            return dest
+    averaged = LearnedPolicy.load(source)
+    if not averaged.critic_heads:
+        averaged = _with_checkpoint_critic(run, averaged)
+    chosen = selecting(averaged, settings["candidates"], settings["spread"], settings["seed"])
+    LearnedPolicy(chosen.arrays, {**chosen.meta, "averaged_sha256": digest}, source=str(dest)).save(dest)  # atomic
     return dest
 
 

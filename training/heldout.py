@@ -25,7 +25,7 @@ from typing import Any
 
 from deck_sim.evaluation import DEFAULT_SEED, EvalConfig, evaluate, machine
 from deck_sim.rollout import git_commit
-from training.final_fit import PLAYS, played_actor
+from training.final_fit import PLAYS, play_settings, played_actor
 
 
 def held_out_file(episodes: int | str, play: str = "shipped") -> str:
@@ -37,13 +37,15 @@ def held_out_file(episodes: int | str, play: str = "shipped") -> str:
 def shipped_held_out(logs: str | Path, episodes: int, play: str = "shipped") -> dict[str, Any] | None:
     """The held-out record in a folder of logs shipped beside an actor of ``deck_sim/trained`` (no actor to measure
     again: ``scripts/train_shipped.py`` copies a run's ``heldout_<episodes>.json`` there) if it is a record of
-    ``episodes`` episodes of the held-out stream with each episode's outcome (``goal_each``), of ``play``; else
-    None."""
+    ``episodes`` episodes of the held-out stream with each episode's outcome (``goal_each``), of ``play`` with
+    today's ``play_settings``; else None. The file is ``heldout_<episodes>.json``, or ``heldout_<episodes>_<play>.json``
+    (``held_out_file``)."""
     try:
         record = json.loads((Path(logs) / held_out_file(episodes, play)).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    ok = _of_episodes(record, episodes, per_episode=True) and record.get("play", "shipped") == play
+    ok = (_of_episodes(record, episodes, per_episode=True) and record.get("play", "shipped") == play
+          and record.get("play_settings", {}) == play_settings(play))
     return record if ok else None
 
 
@@ -83,13 +85,14 @@ def held_out(
         ``{"success", "collision", "timeout", "off_surface"}`` (fractions) with Wilson 95 % intervals
         (``success_ci`` ...), ``reward``, ``path_ratio`` (path over the shortest static path) and ``turning_deg``
         (degrees per successful episode) with Student-t 95 % intervals, and the record of what was measured:
-        ``scene``, ``play``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``, ``seed``, ``wall_s``,
-        ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was hit; ``goal_each``
-        gives each episode, in episode order, the share of its aircraft that reached their targets (1 or 0 with one
-        aircraft).
+        ``scene``, ``play``, ``play_settings``, ``actor``, ``actor_sha256``, ``selected_at_step``, ``episodes``,
+        ``seed``, ``wall_s``, ``git_commit``, ``machine``; ``collision_partners`` counts the collisions by what was
+        hit; ``goal_each`` gives each episode, in episode order, the share of its aircraft that reached their
+        targets (1 or 0 with one aircraft).
 
     Raises:
-        HeldOutError: The folder has no ``config.json`` or no actor of ``play`` yet.
+        HeldOutError: The folder has no ``config.json`` or no actor of ``play`` yet, or its averaged actor no
+            critic to choose by.
         ValueError: An unknown ``play``.
     """
     if play not in PLAYS:
@@ -99,7 +102,10 @@ def held_out(
         config = json.loads((run / "config.json").read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as err:
         raise HeldOutError(f"{run}: not a training run folder (config.json: {err})") from None
-    actor = played_actor(run, play)
+    try:
+        actor = played_actor(run, play)
+    except ValueError as err:  # (an averaged actor whose critic cannot be found)
+        raise HeldOutError(str(err)) from None
     if not actor.exists():
         if play == "shipped":
             raise HeldOutError(f"{run}: no actor to measure yet ({actor.name} appears at the run's first evaluation)")
@@ -125,6 +131,7 @@ def held_out(
     record = {
         "scene": scene,
         "play": play,
+        "play_settings": play_settings(play),
         "actor": actor.name,
         "actor_sha256": digest,
         "selected_at_step": int(meta.get("trained_steps", -1)),

@@ -13,6 +13,10 @@ A run lives in one folder:
     actor.npz          the final greedy actor, weights only (``deck_sim.policies.LearnedPolicy``)
     actor_best.npz     the actor of the best evaluation so far
     actor_avg.npz      the final slow average of the actor (``actor_average``; absent when off)
+    actor_avg_select.npz  that average choosing by the run's critic (``training.final_fit.played_actor``; made
+                       when the run is first measured or shipped that way)
+    heldout_<N>.json   the shipped actor on N held-out episodes (``training.heldout``; and
+                       ``heldout_<N>_<play>.json`` for another way of acting)
 
 The trainer's collaborators each own one job: ``training.runlog`` the CSV and TensorBoard logs,
 ``training.checkpoints`` the checkpoint and the exact resume, ``training.final_fit`` the final cloning fit, the

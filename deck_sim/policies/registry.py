@@ -37,7 +37,12 @@ def shipped_policy_path(algo: str, scene: str) -> Path:
     if not path.exists():
         shipped = sorted(p.stem for p in TRAINED_DIR.glob("*.npz"))
         how = "pass an actor file"
-        if algo in agents.LEARNED:
+        if algo in agents.LEARNED and agents.AGENTS[algo].play:  # (another way of acting of a recipe's runs)
+            how = (f"it is shipped where the scene's recipe {agents.recipe_name(algo, scene)} keeps an averaged "
+                   f"actor (actor_average): python scripts/train_shipped.py --scenes {scene} --algos {algo}; one "
+                   "finished run of such a recipe acts this way through deck-sim select RUN --averaged --out FILE; "
+                   "or pass an actor file")
+        elif algo in agents.LEARNED:
             how = (f"train one with python scripts/train_shipped.py --scenes {scene} --algos {algo} (one seed: "
                    f"deck-sim train --recipe {agents.recipe_name(algo, scene)} --algo {agents.training_algo(algo)}; "
                    "the scenes with recipes: training/recipes), or pass an actor file")
