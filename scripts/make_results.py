@@ -356,7 +356,9 @@ def reward_section(reward: dict[str, dict[str, list[dict]]], recipe_steps: dict[
         *[line for scene in scenes if regime_agents(scene, "reward") is not None
           for line in lacking_lines(scene, "reward", reward.get(scene, {}), tuple(recipe_seeds(scene, "reward")),
                                     episodes, (off or {}).get(scene))],
-        *([] if selecting is None else ["", *selecting_section(selecting, recipe_steps, episodes, scenes)]),
+        *([] if selecting is None else ["", *selecting_section(selecting, recipe_steps, episodes, scenes, {
+            scene: {algo: {r["seed"]: r["steps"] for r in recs if not r["finished"]} for algo, recs in runs.items()}
+            for scene, runs in reward.items()})]),
     ]
 
 
@@ -368,11 +370,12 @@ def keeps_average(scene: str) -> bool:
 
 
 def selecting_section(selecting: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], episodes: int,
-                      scenes: list[str]) -> list[str]:
+                      scenes: list[str], training: dict[str, dict[str, dict[int, int]]] | None = None) -> list[str]:
     """The reward-alone MDDPG and DDPG runs of ``selecting`` (``{scene: {algo: records}}`` of ``regime_runs`` with
     play ``averaged-select``) as the reward section's table gives them, each acting through its averaged actor and
     its own critic's choice; a line for each of ``scenes`` whose recipe keeps no averaged actor, or whose runs have
-    none yet."""
+    none yet. ``training`` (``{scene: {algo: {seed: steps so far}}}``): the seeds still training, named as such
+    (their averaged actor comes when they finish)."""
     from training.final_fit import SELECT_CANDIDATES, SELECT_SPREAD
 
     lines = [
@@ -389,7 +392,8 @@ def selecting_section(selecting: dict[str, dict[str, list[dict]]], recipe_steps:
     if selecting:
         lines += seed_table(selecting, recipe_steps, paper=True,
                             seeds_of={scene: {a: k for a, k in recipe_seeds(scene, "reward").items()
-                                              if a in ("mddpg", "ddpg")} for scene in selecting})
+                                              if a in ("mddpg", "ddpg")} for scene in selecting},
+                            pending=training)
     for scene in scenes:
         if regime_agents(scene, "reward") is None or scene in selecting:
             continue
@@ -480,11 +484,13 @@ def lacking_lines(scene: str, regime: str, found: dict[str, list[dict]], algos: 
 
 
 def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, int], paper: bool,
-               seeds_of: dict[str, dict[str, tuple[int, ...]]] | None = None) -> list[str]:
+               seeds_of: dict[str, dict[str, tuple[int, ...]]] | None = None,
+               pending: dict[str, dict[str, dict[int, int]]] | None = None) -> list[str]:
     """One row per scene and algorithm of ``runs`` (``{scene: {algo: [record per seed]}}``): seeds, steps, training
     time, held-out success (mean with its 95 % interval over seeds, and each seed's), collisions, path and turning,
     over the seeds that finished their recipe's budget (every seed while none has; the others are named, as are
-    the recipe's seeds of ``seeds_of`` (``{scene: {algo: seeds}}``, ``recipe_seeds``) that have no record);
+    the recipe's seeds of ``seeds_of`` (``{scene: {algo: seeds}}``, ``recipe_seeds``) that have no record, those of
+    ``pending`` (``{scene: {algo: {seed: steps so far}}}``) as still training);
     with ``paper``, the paper's success and turning beside them. Then the paired comparisons (``ablation_lines``,
     which name the paper's direction only with ``paper``)."""
     lines = [
@@ -507,6 +513,11 @@ def seed_table(runs: dict[str, dict[str, list[dict]]], recipe_steps: dict[str, i
             else:
                 seeds += f"{'' if not training else f'; of {recipe_steps[scene]:,}, still training'})"
             absent = [k for k in (seeds_of or {}).get(scene, {}).get(algo, ()) if k not in {r["seed"] for r in every}]
+            going = (pending or {}).get(scene, {}).get(algo, {})
+            for k in [k for k in absent if k in going]:  # (a way of acting its run gets only when it finishes)
+                seeds += (f"; seed {k} still training (last evaluated at {going[k]:,} of {recipe_steps[scene]:,} "
+                          "steps), left out")
+            absent = [k for k in absent if k not in going]
             if absent:
                 seeds += (f"; seed{'s' if len(absent) > 1 else ''} {', '.join(map(str, absent))} with no held-out "
                           "record of the recipe as it is in this checkout (not trained here, stopped before its "

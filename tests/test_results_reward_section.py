@@ -442,6 +442,16 @@ def test_the_runs_acting_through_their_critics_get_their_own_table_and_target_li
     assert "- deck2: no finished run with an averaged actor in this checkout: `python benchmarks/learning.py " \
            "--recipe deck2-reward --arms mddpg,ddpg` trains them." in make_results.selecting_section({}, {}, 100,
                                                                                                   ["deck2"])
+    # a seed whose run is still training (it has its averaged actor only when it finishes) is named as such
+    two = {"deck2": {"mddpg": selecting["deck2"]["mddpg"][:2], "ddpg": selecting["deck2"]["ddpg"]}}
+    text = "\n".join(make_results.selecting_section(two, {"deck2": 1_000_000}, 100, ["deck2"],
+                                                     {"deck2": {"mddpg": {2: 500_000}}}))
+    assert "| deck2 | mddpg | 2: 0, 1 (1,000,000); seed 2 still training (last evaluated at 500,000 of 1,000,000 " \
+           "steps), left out |" in text
+    plain = {"deck2": {"mddpg": [_record(0, 0.7), _record(1, 0.7), {**_record(2, 0.7), "finished": False,
+                                                                      "steps": 500_000}]}}
+    assert "seed 2 still training (last evaluated at 500,000" in "\n".join(
+        make_results.reward_section(plain, {"deck2": 1_000_000}, 100, ["deck2"], selecting=two))
     # the reward section carries it after its own table when asked to
     assert "### The same runs" not in "\n".join(make_results.reward_section({}, {}, 100, ["deck2"]))
     assert "### The same runs" in "\n".join(make_results.reward_section({}, {}, 100, ["deck2"], selecting={}))
